@@ -1,0 +1,43 @@
+"""mlsph-jax: differentiable meshless finite-volume particle methods in JAX.
+
+Importing the package enables float64 in JAX (``jax_enable_x64``): Tait water pressures reach
+1e8-5e9 Pa while the differences that drive the flow are small, and quadratic MLS moment
+matrices are poorly conditioned in float32 (SPEC §5.9).  Set the environment variable
+``MLSPH_JAX_FLOAT32=1`` before import to keep JAX's float32 default (GPU throughput studies).
+"""
+
+from __future__ import annotations
+
+import os as _os
+
+import jax as _jax
+
+if _os.environ.get("MLSPH_JAX_FLOAT32", "0") != "1":
+    _jax.config.update("jax_enable_x64", True)
+
+__version__ = "0.1.0"
+
+from .errors import ConfigError, InputError, MLSPHError, NeighborOverflowError, SimulationError  # noqa: E402
+from .state import Domain, Kind, Params, Particles, make_particles  # noqa: E402
+
+__all__ = [
+    "__version__",
+    "ConfigError",
+    "Domain",
+    "InputError",
+    "Kind",
+    "MLSPHError",
+    "NeighborOverflowError",
+    "Params",
+    "Particles",
+    "SimulationError",
+    "make_particles",
+]
+
+
+def __getattr__(name):  # lazy import keeps `import mlsph_jax` light
+    if name == "shape_functions":
+        from .shape_functions import shape_functions
+
+        return shape_functions
+    raise AttributeError(name)

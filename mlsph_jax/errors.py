@@ -1,0 +1,43 @@
+"""Exception types of mlsph-jax.
+
+Every error raised for bad input names the argument (or config key), the value received and
+what is allowed, so that a user can fix the call without reading the source.
+"""
+
+from __future__ import annotations
+
+
+class MLSPHError(Exception):
+    """Base class of all mlsph-jax errors."""
+
+
+class InputError(MLSPHError, ValueError):
+    """A function argument is invalid (wrong value, shape, type or non-finite data)."""
+
+
+class ConfigError(MLSPHError, ValueError):
+    """A configuration key is unknown, missing, of the wrong type or out of range."""
+
+
+class NeighborOverflowError(MLSPHError, RuntimeError):
+    """A fixed-capacity neighbour list (or cell) overflowed and could not be regrown."""
+
+
+class SimulationError(MLSPHError, RuntimeError):
+    """A simulation went wrong (NaN, negative density/volume, time-step underflow).
+
+    Attributes carry where it happened so that callers can report it: ``step``, ``time`` and
+    ``particle`` (index of the first offending particle, or ``None``).
+    """
+
+    def __init__(self, message: str, *, step: int | None = None, time: float | None = None,
+                 particle: int | None = None):
+        super().__init__(message)
+        self.step = step
+        self.time = time
+        self.particle = particle
+
+
+def invalid(argument: str, value, allowed: str) -> InputError:
+    """Build the standard bad-argument error: names the argument, the value and what is allowed."""
+    return InputError(f"invalid {argument}={value!r}; allowed: {allowed}")
