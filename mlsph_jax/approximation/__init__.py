@@ -1,0 +1,198 @@
+"""Approximation library: shape-function values and gradients on the (N, K) neighbour stencil.
+
+For every particle i and slot k with j = idx[i, k] this builds
+
+    values[i, k]    = N_j(x_i)            (shape function of j evaluated at particle i)
+    gradients[i, k] = grad N_j(x_i)       (= "grad N_ji" of the thesis, SPEC §4.3)
+
+for the approximations of SPEC §4 and §11 (the thesis' Table 5.1 and the settings of §10.5):
+
+* ``kernel``    — plain SPH, N_j(x) = W(x - x_j, h_ij) V_j with the pair-mean smoothing length
+  h_ij = (h_i + h_j)/2 (thesis eq. 3.5); so V_i grad N_ji - V_j grad N_ij = 2 V_i V_j grad_i W_ij
+  (thesis eq. 5.84-5.85).
+* ``shepard``   — MLS with the constant basis, N_j = w_j / sum_k w_k (B98 eq. 38, FVPM particle
+  functions, thesis eq. 5.46).  Identical to ``mls`` with degree 0.
+* ``corrected`` — Shepard-normalised kernel values with the Randles–Libersky / Bonet–Lok
+  renormalised gradient grad N_j(x_i) = B_i grad W_ij V_j, B_i = (sum_j V_j grad W_ij (x_j -
+  x_i)^T)^{-1}, and grad N_i(x_i) = -sum_{j != i} grad N_j(x_i) (B98 eq. 67-70, thesis eq. 5.108);
+  exact for linear fields; falls back to the plain kernel gradient where B_i is singular.
+* ``mls``       — moving least squares of degree 0..3 (see :mod:`.mls`), full or fixed-centre
+  derivative, per-particle fallback to lower degrees, and the per-particle polynomial
+  coefficients for evaluating fitted fields anywhere near the particle (:func:`fit`,
+  :func:`evaluate_fit`).
+
+Smoothing length: h_i = beta * V_i^(1/d) (thesis eq. 4.34).  MLS uses the gather convention
+(weights W(x_k - x_i, h_i), SPEC §13.1 item 2); kernel approximations the pair mean h_ij.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+
+from ..errors import InputError
+from ..kernels import get_kernel
+from ..registry import Registry
+from ..state import minimum_image
+from . import basis, mls
+
+APPROXIMATIONS: Registry[str] = Registry("approximation")
+for _name in ("kernel", "shepard", "corrected", "mls"):
+    APPROXIMATIONS.register(_name)(_name)
+
+DERIVATIVES = ("full", "fixed_centre")
+
+
+@dataclasses.dataclass(frozen=True)
+class ApproxSpec:
+    """Static, hashable choice of approximation (a jit static argument).
+
+    ``rcond`` is the pivot-ratio threshold of the MLS degree fallback (see :mod:`.mls`).
+    """
+
+    approximation: str = "mls"
+    degree: int = 2
+    kernel: str = "cubic_spline"
+    derivative: str = "full"
+    rcond: float = 1e-6
+    with_coeffs: bool = False
+
+    def __post_init__(self):
+        APPROXIMATIONS.get(self.approximation, "approximation")
+        get_kernel(self.kernel)
+        if not isinstance(self.degree, int) or isinstance(self.degree, bool) or not 0 <= self.degree <= 3:
+            raise InputError(f"invalid degree={self.degree!r}; allowed: an integer in 0..3")
+        if self.derivative not in DERIVATIVES:
+            raise InputError(f"invalid derivative={self.derivative!r}; allowed: {', '.join(DERIVATIVES)}")
+        if not (0.0 <= self.rcond < 1.0):
+            raise InputError(f"invalid rcond={self.rcond!r}; allowed: 0 <= rcond < 1")
+
+    @property
+    def mls_degree(self) -> int:
+        """Basis degree used by the MLS path (``shepard`` is degree 0)."""
+        return 0 if self.approximation == "shepard" else self.degree
+
+    @property
+    def is_mls(self) -> bool:
+        return self.approximation in ("mls", "shepard")
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class ShapeOperators:
+    """Shape-function data on the stencil (a pytree).
+
+    values[N, K], gradients[N, K, d]: N_j(x_i) and grad N_j(x_i) for j = idx[i, k] (zero on
+    padding); coeffs[N, m, K] (MLS only, else None): fixed-centre coefficients C_i so that the
+    fitted polynomial of stencil data u is p((y - x_i)/h_i)^T C_i u_S; h[N]: smoothing length of
+    each particle (gather); degree[N]: active MLS degree after fallback (-1 for kernel methods).
+    """
+
+    values: jax.Array
+    gradients: jax.Array
+    coeffs: jax.Array | None
+    h: jax.Array
+    degree: jax.Array
+
+
+def smoothing_length(vol, beta: float, dim: int):
+    """h_i = beta * V_i^(1/d)  (thesis eq. 4.34, T:L1185)."""
+    return beta * vol ** (1.0 / dim)
+
+
+def pair_offsets(x, idx, mask, box_length=None, periodic=None):
+    """dx[i, k] = x_j - x_i (minimum image), zero on padding slots."""
+    n = x.shape[0]
+    j = jnp.where(mask, idx, jnp.arange(n)[:, None])
+    dx = minimum_image(x[j] - x[:, None, :], box_length, periodic)
+    return jnp.where(mask[..., None], dx, 0.0)
+
+
+@functools.partial(jax.jit, static_argnames=("spec",))
+def build(x, h, vol, idx, mask, spec: ApproxSpec, box_length=None, periodic=None) -> ShapeOperators:
+    """Shape-function operators for all particles (jit-able; ``spec`` is static).
+
+    Arguments: positions x[N, d], smoothing lengths h[N], volumes vol[N], neighbour indices
+    idx[N, K] (padding value N) and mask[N, K] from :mod:`mlsph_jax.neighbors`, optional periodic
+    box lengths and periodic flags (arrays of length d).
+    """
+    dx = pair_offsets(x, idx, mask, box_length, periodic)
+    kern = get_kernel(spec.kernel)
+    n = x.shape[0]
+    if spec.is_mls:
+        f = functools.partial(mls.particle_operators, kernel=kern, degree=spec.mls_degree,
+                              rcond=spec.rcond, derivative=spec.derivative,
+                              with_coeffs=spec.with_coeffs)
+        values, grads, coeffs, deg = jax.vmap(f)(dx, mask, h)
+        return ShapeOperators(values, grads, coeffs, h, deg)
+
+    jsafe = jnp.where(mask, idx, jnp.arange(n)[:, None])
+    hij = 0.5 * (h[:, None] + h[jsafe])
+    vj = jnp.where(mask, vol[jsafe], 0.0)
+    w = kern.w_vec(dx, hij) * vj
+    kgrad = kern.grad(-dx, hij) * vj[..., None]  # grad_x W(x - x_j) at x = x_i
+    none_deg = jnp.full((n,), -1, jnp.int32)
+    if spec.approximation == "kernel":
+        return ShapeOperators(w, kgrad, None, h, none_deg)
+
+    # corrected: Shepard values, renormalised gradients with the partition of nullity
+    values = w / jnp.sum(w, axis=1, keepdims=True)
+    E = jnp.einsum("nka,nkb->nab", kgrad, dx)  # sum_j V_j dW_ij/dx^a (x_j - x_i)^b
+    d = x.shape[1]
+    det = jnp.linalg.det(E)
+    scale = jnp.prod(jnp.abs(jnp.diagonal(E, axis1=1, axis2=2)), axis=1)
+    good = jax.lax.stop_gradient(jnp.abs(det) > 1e-8 * jnp.maximum(scale, 1e-300))
+    Esafe = jnp.where(good[:, None, None], E, jnp.eye(d))
+    B = jnp.linalg.inv(Esafe)
+    g = jnp.einsum("nab,nkb->nka", B, kgrad)
+    is_self = idx == jnp.arange(n)[:, None]
+    g = jnp.where(is_self[..., None], 0.0, g)
+    g = g - is_self[..., None] * jnp.sum(g, axis=1, keepdims=True)
+    g = jnp.where(good[:, None, None], g, kgrad - is_self[..., None] * jnp.sum(kgrad, axis=1, keepdims=True))
+    return ShapeOperators(values, g, None, h, none_deg)
+
+
+def fit(ops: ShapeOperators, idx, mask, field):
+    """Per-particle polynomial coefficients a_i = C_i u_S of ``field[N, ...]`` -> ``[N, m, ...]``."""
+    if ops.coeffs is None:
+        raise InputError("fit() needs coefficients; build with ApproxSpec(approximation='mls', "
+                         "with_coeffs=True)")
+    n = field.shape[0]
+    j = jnp.where(mask, idx, jnp.arange(n)[:, None])
+    u = field[j]  # [N, K, ...]
+    return jnp.einsum("nmk,nk...->nm...", ops.coeffs, u)
+
+
+def evaluate_fit(a, h, offset, degree: int):
+    """Value and gradient of the fitted polynomials at ``x_i + offset``.
+
+    a[N, m, ...] from :func:`fit` (or any leading batch shape matching ``offset[..., d]``),
+    h[...] the owner's smoothing length.  Returns ``(value[..., ...], gradient[..., d, ...])``.
+    """
+    xi = offset / h[..., None]
+    P = basis.evaluate(xi, degree)  # [..., m]
+    G = basis.gradient(xi, degree) / h[..., None, None]  # [..., m, d]
+    value = jnp.einsum("...m,...m->...", P, a) if a.ndim == P.ndim else jnp.einsum("...m,...mv->...v", P, a)
+    if a.ndim == P.ndim:
+        grad = jnp.einsum("...md,...m->...d", G, a)
+    else:
+        grad = jnp.einsum("...md,...mv->...dv", G, a)
+    return value, grad
+
+
+def interpolate(ops: ShapeOperators, idx, mask, field):
+    """sum_k N_j(x_i) field_j — the approximation of ``field[N, ...]`` at the particles."""
+    n = field.shape[0]
+    j = jnp.where(mask, idx, jnp.arange(n)[:, None])
+    return jnp.einsum("nk,nk...->n...", ops.values, field[j])
+
+
+def gradient(ops: ShapeOperators, idx, mask, field):
+    """sum_k grad N_j(x_i) (field_j - field_i) -> ``[N, d, ...]`` (thesis eq. 5.105-5.107)."""
+    n = field.shape[0]
+    j = jnp.where(mask, idx, jnp.arange(n)[:, None])
+    diff = field[j] - field[:, None]
+    return jnp.einsum("nkd,nk...->nd...", ops.gradients, diff)
