@@ -19,6 +19,7 @@ __version__ = "0.1.0"
 
 from .errors import ConfigError, InputError, MLSPHError, NeighborOverflowError, SimulationError  # noqa: E402
 from .state import Domain, Kind, Params, Particles, make_particles  # noqa: E402
+from .point_cloud import ShapeFunctions, shape_functions  # noqa: E402
 
 __all__ = [
     "__version__",
@@ -30,14 +31,9 @@ __all__ = [
     "NeighborOverflowError",
     "Params",
     "Particles",
+    "ShapeFunctions",
     "SimulationError",
     "make_particles",
+    "shape_functions",
 ]
 
-
-def __getattr__(name):  # lazy import keeps `import mlsph_jax` light
-    if name == "shape_functions":
-        from .shape_functions import shape_functions
-
-        return shape_functions
-    raise AttributeError(name)
