@@ -1074,6 +1074,7 @@ RIEMANN_1D_KEYS: dict[str, Key] = {
 
 RIEMANN_1D = register_case_schema(
     "riemann_1d", RIEMANN_1D_KEYS, check=check_riemann_1d, dim=1,
+    defaults_override={"scheme.frame": "lagrangian"},
     doc="One-dimensional Riemann problem (shock tube): two constant states separated by an "
         "interface at `x_interface`.")
 

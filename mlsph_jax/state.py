@@ -117,6 +117,9 @@ class Params(Mapping):
         except KeyError:
             raise InputError(f"missing parameter {key!r}; present: {', '.join(self._v) or 'none'}") from None
 
+    def __contains__(self, key: object) -> bool:
+        return key in self._v
+
     def __iter__(self):
         return iter(self._v)
 

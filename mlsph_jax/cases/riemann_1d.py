@@ -1,0 +1,128 @@
+"""``riemann_1d``: one-dimensional Riemann problems (shock tubes) against exact solutions.
+
+Thesis §3.7.1 (R1: Tait water, Fig. 3.3) and R2 (Tammann/stiffened gas, Fig. 3.4); Sod's tube
+for the ideal gas.  ``n`` fluid particles with equal volumes dx = (b - a)/n fill [a, b].
+Transmissive ends (SPEC §13.7 item 40): beyond each end, ``ceil(kappa beta) + 1`` FROZEN
+particles hold the undisturbed end state, so every fluid particle has a complete stencil; they
+act as neighbours but are never updated (the waves must not reach them before ``t_end``).
+
+Metrics (against :mod:`mlsph_jax.reference.riemann`): ``l1_rho``, ``l1_u``, ``l1_p`` =
+sum_i V_i |phi_i - phi_exact(x_i)| / ((b - a) * range(phi_exact)), over fluid particles, where
+range is max - min of the exact profile (the jump size; for R1's velocity, whose end states are
+equal, it is the star velocity).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+
+from ..eos import get_eos, to_conservative, to_primitive
+from ..reference.riemann import ExactRiemann
+from ..simulation import Problem
+from ..state import Domain, Kind, Particles, make_particles
+from . import CASES
+from .common import params_from_config, scheme_from_config
+
+
+def _exact(cfg: Mapping) -> ExactRiemann:
+    c, eos = cfg["case"], cfg["eos"]
+    has_p = eos["kind"] != "tait"
+
+    def st(s):
+        return (s["rho"], s["u"], s["p"]) if has_p else (s["rho"], s["u"])
+
+    return ExactRiemann(st(c["left"]), st(c["right"]), dict(eos), x0=c["x_interface"])
+
+
+@CASES.register("riemann_1d")
+def build(cfg: Mapping) -> Problem:
+    c = cfg["case"]
+    scheme = scheme_from_config(cfg)
+    params = params_from_config(cfg)
+    eos = get_eos(scheme.eos)
+    a, b = c["domain"]
+    n = c["n"]
+    dx = (b - a) / n
+    n_frozen = math.ceil(scheme.support * scheme.beta) + 1
+    i = np.arange(-n_frozen, n + n_frozen)
+    x = a + (i + 0.5) * dx
+    kind = np.where((i < 0) | (i >= n), int(Kind.FROZEN), int(Kind.FLUID))
+    left = x <= c["x_interface"]
+
+    def state(key, default=0.0):
+        lv, rv = c["left"].get(key, default), c["right"].get(key, default)
+        return jnp.asarray(np.where(left, lv, rv))
+
+    U = to_conservative(state("rho"), state("u")[:, None], state("p"), eos, params)
+    particles = make_particles(x[:, None], np.full(x.shape, dx), U, kind=kind,
+                               ppd=np.full(x.shape, scheme.reconstruction_degree))
+    domain = Domain((a - (n_frozen + 2) * dx,), (b + (n_frozen + 2) * dx,), (False,))
+    exact = _exact(cfg)
+
+    def metrics(p: Particles, t: float, P) -> dict[str, float]:
+        return l1_errors(p, t, P, exact, scheme.eos, (a, b))
+
+    def plot(out: Path, p: Particles, t: float, P) -> None:
+        plot_profiles(out / "profiles.png", p, t, P, exact, scheme.eos, title=_title(cfg))
+
+    return Problem("riemann_1d", particles, params, scheme, domain, cfg["time"]["t_end"], metrics, plot,
+                   config=cfg, description=_title(cfg))
+
+
+def _title(cfg) -> str:
+    s = cfg["scheme"]
+    return (f"riemann_1d ({cfg['eos']['kind']}, n={cfg['case']['n']}): {s['method']}, "
+            f"reconstruction degree {s['reconstruction_degree']}, {s['frame']}")
+
+
+def _fields(p: Particles, P, eos_kind: str):
+    fluid = np.asarray(p.kind) == int(Kind.FLUID)
+    pr = to_primitive(p.U, get_eos(eos_kind), P)
+    x = np.asarray(p.x[:, 0])[fluid]
+    out = {"rho": np.asarray(pr.rho)[fluid], "u": np.asarray(pr.vel[:, 0])[fluid],
+           "p": np.asarray(pr.p)[fluid]}
+    if get_eos(eos_kind).has_energy:
+        out["e"] = np.asarray(pr.e)[fluid]
+    return x, np.asarray(p.vol)[fluid], out
+
+
+def l1_errors(p: Particles, t: float, P, exact: ExactRiemann, eos_kind: str, span) -> dict[str, float]:
+    """Normalised L1 errors of rho, u, p against the exact solution (module docstring)."""
+    x, vol, f = _fields(p, P, eos_kind)
+    ex = exact(x, t)
+    fine = exact(np.linspace(span[0], span[1], 20001), t)
+    out = {}
+    for k in ("rho", "u", "p"):
+        rng = float(np.max(fine[k]) - np.min(fine[k]))
+        out[f"l1_{k}"] = float(np.sum(vol * np.abs(f[k] - ex[k])) / ((span[1] - span[0]) * max(rng, 1e-300)))
+    return out
+
+
+def plot_profiles(path: Path, p: Particles, t: float, P, exact: ExactRiemann, eos_kind: str, title: str = ""):
+    """Particle profiles of rho, u, p (and e) against the exact solution."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    x, _, f = _fields(p, P, eos_kind)
+    xf = np.linspace(x.min(), x.max(), 2000)
+    ex = exact(xf, t)
+    names = [k for k in ("rho", "u", "p", "e") if k in f]
+    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.4))
+    labels = {"rho": "density", "u": "velocity", "p": "pressure", "e": "internal energy"}
+    for ax, k in zip(axes, names, strict=True):
+        ax.plot(xf, ex[k], "k-", lw=1.2, label="exact")
+        ax.plot(x, f[k], "o", ms=3, mfc="none", color="tab:blue", label="particles")
+        ax.set_xlabel("x")
+        ax.set_title(labels[k])
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"{title}  t={t:.4g}", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

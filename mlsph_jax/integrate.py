@@ -1,0 +1,194 @@
+"""SSP-RK3 time integration with a CFL step, chunked ``lax.scan`` stepping and health checks.
+
+Shu–Osher SSP-RK3 for y = (x, V, V U) (SPEC §7.1):
+
+    y1 = y + dt L(y);  y2 = 3/4 y + 1/4 (y1 + dt L(y1));  y' = 1/3 y + 2/3 (y2 + dt L(y2))
+
+CFL step (SPEC §7.1, [REC]): dt = C min_i dx_i / (|u_i - w_i| + c_i) over fluid particles,
+dx_i = V_i^(1/d); clipped so that output times are hit exactly.
+
+A chunk of ``n`` steps is one jitted ``lax.scan`` (no host synchronisation inside).  Each step
+checks the candidate state; a failing step is *not committed*: the carry keeps the last good
+state and a status code, and later steps of the chunk are no-ops.  The host inspects the status
+between chunks (see :mod:`mlsph_jax.simulation`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from enum import IntEnum
+
+import jax
+import jax.numpy as jnp
+
+from . import neighbors as nb
+from .eos import get_eos, to_primitive
+from .rhs import Geometry, frame_velocity, geometry, rhs
+from .scheme import Scheme
+from .state import Domain, Kind, Params, Particles
+
+
+class Status(IntEnum):
+    OK = 0
+    NONFINITE = 1
+    NEGATIVE_DENSITY = 2
+    NEGATIVE_VOLUME = 3
+    NEIGHBOR_OVERFLOW = 4
+    DT_UNDERFLOW = 5
+
+    def describe(self) -> str:
+        return {
+            Status.OK: "ok",
+            Status.NONFINITE: "non-finite value (NaN/inf) in the state",
+            Status.NEGATIVE_DENSITY: "non-positive density",
+            Status.NEGATIVE_VOLUME: "non-positive particle volume",
+            Status.NEIGHBOR_OVERFLOW: "neighbour-list capacity overflow",
+            Status.DT_UNDERFLOW: "time step underflow",
+        }[self]
+
+
+@dataclasses.dataclass(frozen=True)
+class StepControl:
+    """Static time-step settings: CFL number, fixed step (0 = adaptive), underflow threshold."""
+
+    cfl: float = 0.3
+    dt_fixed: float = 0.0
+    dt_min: float = 0.0
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Carry:
+    """Scan carry: state, time, step counter, status code and the first offending particle."""
+
+    particles: Particles
+    t: jax.Array
+    step: jax.Array
+    status: jax.Array
+    bad_particle: jax.Array
+    dt_last: jax.Array
+
+
+def cfl_dt(particles: Particles, params: Params, scheme: Scheme, cfl: float):
+    """C min_i V_i^(1/d) / (|u_i - w_i| + c_i) over fluid particles (SPEC §7.1)."""
+    eos = get_eos(scheme.eos)
+    U = particles.U
+    prim = to_primitive(U, eos, params)
+    w = frame_velocity(U, particles.kind, scheme, params)
+    speed = jnp.linalg.norm(prim.vel - w, axis=-1) + prim.c
+    dxi = particles.vol ** (1.0 / particles.dim)
+    local = jnp.where(particles.kind == Kind.FLUID, dxi / speed, jnp.inf)
+    return cfl * jnp.min(local)
+
+
+def health(particles: Particles):
+    """(status, first offending particle) of a candidate state (fluid particles are checked)."""
+    fluid = particles.kind == Kind.FLUID
+    finite = (jnp.all(jnp.isfinite(particles.q), axis=1) & jnp.all(jnp.isfinite(particles.x), axis=1)
+              & jnp.isfinite(particles.vol))
+    nonfinite = fluid & ~finite
+    negvol = fluid & finite & (particles.vol <= 0)
+    negrho = fluid & finite & ~negvol & (particles.q[:, 0] <= 0)
+    status = jnp.where(jnp.any(nonfinite), Status.NONFINITE,
+                       jnp.where(jnp.any(negvol), Status.NEGATIVE_VOLUME,
+                                 jnp.where(jnp.any(negrho), Status.NEGATIVE_DENSITY, Status.OK)))
+    bad = jnp.where(jnp.any(nonfinite), jnp.argmax(nonfinite),
+                    jnp.where(jnp.any(negvol), jnp.argmax(negvol), jnp.argmax(negrho)))
+    return status.astype(jnp.int32), bad.astype(jnp.int32)
+
+
+def _axpy(a, y, b, z, dt_b, dz):
+    """a*y + b*(z + dt_b*dz) on the (x, vol, q) parts of Particles."""
+    dx, dvol, dq = dz
+    return y.replace(x=a * y.x + b * (z.x + dt_b * dx), vol=a * y.vol + b * (z.vol + dt_b * dvol),
+                     q=a * y.q + b * (z.q + dt_b * dq))
+
+
+def make_stage_geometry(scheme: Scheme, domain: Domain, nspec):
+    """Function particles -> Geometry for moving particles (neighbour list rebuilt every stage)."""
+
+    def stage_geometry(p: Particles) -> Geometry:
+        h = scheme.beta * p.vol ** (1.0 / p.dim)
+        nl = nb.update(p.x, h, nspec)
+        return geometry(p.x, p.vol, nl, scheme, domain)
+
+    return stage_geometry
+
+
+SSP_RK3_A = (0.0, 0.75, 1.0 / 3.0)  # Shu-Osher form: z_{k+1} = a_k y + b_k (z_k + dt L(z_k))
+SSP_RK3_B = (1.0, 0.25, 2.0 / 3.0)
+
+
+def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, stage_hook=None):
+    """One SSP-RK3 step.  ``geom_fn(p)`` returns the Geometry of a stage (constant for Eulerian
+    runs).  ``stage_hook(y, z, candidate, geom, a, b, dt)`` may replace a stage result (MOOD).
+    Returns the new state and whether any stage's neighbour list overflowed.
+
+    The three stages run as a ``lax.scan`` over the Shu-Osher coefficients, so the right-hand
+    side is traced (and compiled) once, not three times.
+    """
+
+    def stage(carry, ab):
+        z, overflow = carry
+        a, b = ab
+        geom = geom_fn(z)
+        dz = rhs(z, params, geom, scheme)
+        cand = _axpy(a, p, b, z, dt, dz)
+        if stage_hook is not None:
+            cand = stage_hook(p, z, cand, geom, a, b, dt)
+        return (cand, overflow | geom.overflow), None
+
+    coeffs = (jnp.asarray(SSP_RK3_A), jnp.asarray(SSP_RK3_B))
+    (out, overflow), _ = jax.lax.scan(stage, (p, jnp.asarray(False)), coeffs)
+    return out, overflow
+
+
+def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: int, nspec=None,
+               stage_hook=None):
+    """Build ``chunk(carry, params, static_geom, t_stop) -> carry`` running ``n_steps`` steps.
+
+    For Eulerian schemes pass the precomputed Geometry as ``static_geom``; for moving particles
+    pass ``None`` and a neighbour spec ``nspec`` (lists rebuilt every stage).
+    """
+
+    def chunk(carry: Carry, params: Params, static_geom, t_stop):
+        geom_fn = (lambda p: static_geom) if not scheme.moving else make_stage_geometry(scheme, domain, nspec)
+
+        def one(c: Carry, _):
+            active = (c.status == Status.OK) & (c.t < t_stop)
+
+            def advance(c: Carry) -> Carry:
+                dt = (jnp.asarray(control.dt_fixed) if control.dt_fixed > 0
+                      else cfl_dt(c.particles, params, scheme, control.cfl))
+                remaining = t_stop - c.t
+                last = dt >= remaining
+                dt = jnp.minimum(dt, remaining)
+                newp, overflow = ssp_rk3_step(c.particles, params, dt, scheme, geom_fn, stage_hook)
+                st, bad = health(newp)
+                st = jnp.where(overflow, Status.NEIGHBOR_OVERFLOW, st)
+                st = jnp.where((dt < control.dt_min) & ~last, Status.DT_UNDERFLOW, st).astype(jnp.int32)
+                ok = st == Status.OK
+                keep = lambda new, old: jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, old)
+                t_new = jnp.where(last, t_stop, c.t + dt)
+                return Carry(keep(newp, c.particles), jnp.where(ok, t_new, c.t),
+                             c.step + ok.astype(c.step.dtype), st, jnp.where(ok, c.bad_particle, bad),
+                             jnp.where(ok, dt, c.dt_last))
+
+            return jax.lax.cond(active, advance, lambda c: c, c), None
+
+        out, _ = jax.lax.scan(one, carry, None, length=n_steps)
+        return out
+
+    return jax.jit(chunk)
+
+
+def initial_carry(particles: Particles, t0: float = 0.0) -> Carry:
+    return Carry(particles, jnp.asarray(t0, jnp.float64), jnp.asarray(0, jnp.int32),
+                 jnp.asarray(Status.OK, jnp.int32), jnp.asarray(-1, jnp.int32), jnp.asarray(0.0))
+
+
+@functools.partial(jax.jit, static_argnames=("scheme", "domain"))
+def static_geometry(particles: Particles, nl, scheme: Scheme, domain: Domain) -> Geometry:
+    """Geometry of fixed (Eulerian) particles, computed once."""
+    return geometry(particles.x, particles.vol, nl, scheme, domain)

@@ -1,0 +1,123 @@
+"""Static, hashable description of a numerical scheme (the "method switchboard", SPEC §10.5).
+
+A :class:`Scheme` is a jit static argument: changing it recompiles, changing
+:class:`~mlsph_jax.state.Params` does not.  Built from the ``[scheme]`` config table with
+:meth:`Scheme.from_config`; every field is validated against its registry.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+
+from .approximation import APPROXIMATIONS, ApproxSpec
+from .config import METHOD_BETA
+from .eos import get_eos
+from .errors import InputError
+from .flux import FLUXES, WAVE_SPEEDS
+from .kernels import get_kernel
+from .registry import Registry
+
+METHODS = Registry("scheme.method")
+METHODS.register("mlsph_ale")("MLSPH-ALE: MLS area vectors (thesis eq. 4.36) and direct MLS reconstruction (eq. 4.39)")
+METHODS.register("sph_ale")("SPH-ALE: kernel area vectors 2 V_i V_j grad W_ij (eq. 3.5) and Taylor reconstruction (eq. 3.11)")
+FRAMES = Registry("scheme.frame")
+FRAMES.register("eulerian")("w = 0")
+FRAMES.register("lagrangian")("w = u")
+POSITION_UPDATES = ("mls", "shepard", "w_i")
+LIMITERS = Registry("scheme.limiter")
+LIMITERS.register("none")("no limiter")
+LIMITERS.register("mood")("MOOD a-posteriori order reduction")
+
+
+@dataclasses.dataclass(frozen=True)
+class Scheme:
+    """Numerical scheme.
+
+    method:                   ``mlsph_ale`` | ``sph_ale``
+    approximation, degree:    shape functions of the MLSPH-ALE area vectors (mls/kernel/shepard/corrected)
+    kernel, beta:             kernel / MLS weight and h_i = beta V_i^(1/d)
+    derivative:               ``full`` | ``fixed_centre`` MLS derivative
+    reconstruction_degree:    polynomial degree of the Riemann-state reconstruction (0 = first order)
+    reconstruction_variables: ``conservative`` | ``primitive``
+    flux, wave_speed, dissipation_normal: numerical flux options (:mod:`mlsph_jax.flux`)
+    self_flux:                keep the -F_i . sum_j A_ij term (thesis eq. 4.36)
+    frame:                    ``eulerian`` | ``lagrangian``
+    position_update:          ``mls`` (the method's own interpolant of w: MLS for mlsph_ale, the
+                              Shepard kernel average T(3.7) for sph_ale) | ``shepard`` | ``w_i``
+    limiter:                  ``none`` | ``mood``
+    eos:                      EOS kind
+    rcond:                    MLS degree-fallback threshold
+    """
+
+    method: str = "mlsph_ale"
+    approximation: str = "mls"
+    degree: int = 2
+    kernel: str = "cubic_spline"
+    beta: float = 1.5
+    derivative: str = "full"
+    reconstruction_degree: int = 2
+    reconstruction_variables: str = "conservative"
+    flux: str = "rusanov"
+    wave_speed: str = "rusanov_abs"
+    dissipation_normal: str = "area"
+    self_flux: bool = True
+    frame: str = "eulerian"
+    position_update: str = "mls"
+    limiter: str = "none"
+    eos: str = "ideal_gas"
+    rcond: float = 1e-6
+
+    def __post_init__(self):
+        METHODS.get(self.method, "scheme.method")
+        APPROXIMATIONS.get(self.approximation, "scheme.approximation")
+        get_kernel(self.kernel)
+        FLUXES.get(self.flux, "scheme.flux")
+        WAVE_SPEEDS.get(self.wave_speed, "scheme.wave_speed")
+        FRAMES.get(self.frame, "scheme.frame")
+        LIMITERS.get(self.limiter, "scheme.limiter")
+        get_eos(self.eos)
+        for name in ("degree", "reconstruction_degree"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 3:
+                raise InputError(f"invalid scheme.{name}={v!r}; allowed: an integer in 0..3")
+        if not self.beta > 0:
+            raise InputError(f"invalid scheme.beta={self.beta!r}; allowed: > 0")
+        if self.dissipation_normal not in ("area", "pair"):
+            raise InputError(f"invalid scheme.dissipation_normal={self.dissipation_normal!r}; allowed: area, pair")
+        if self.reconstruction_variables not in ("conservative", "primitive"):
+            raise InputError(f"invalid scheme.reconstruction_variables={self.reconstruction_variables!r}; "
+                             "allowed: conservative, primitive")
+        if self.position_update not in POSITION_UPDATES:
+            raise InputError(f"invalid scheme.position_update={self.position_update!r}; "
+                             f"allowed: {', '.join(POSITION_UPDATES)}")
+
+    @classmethod
+    def from_config(cls, table: Mapping, eos_kind: str) -> Scheme:
+        """Build from a validated ``[scheme]`` table (``beta = 0`` selects the method default)."""
+        kw = {f.name: table[f.name] for f in dataclasses.fields(cls) if f.name in table}
+        kw.pop("neighbor_headroom", None)
+        if not kw.get("beta"):
+            kw["beta"] = METHOD_BETA[kw.get("method", "mlsph_ale")]
+        return cls(**kw, eos=eos_kind)
+
+    @property
+    def moving(self) -> bool:
+        """Whether particles move (neighbour lists and operators change every stage)."""
+        return self.frame != "eulerian"
+
+    @property
+    def support(self) -> float:
+        return get_kernel(self.kernel).support
+
+    def area_spec(self) -> ApproxSpec:
+        """Shape functions of the MLSPH-ALE area vectors (coefficients kept when they can be
+        reused for the reconstruction)."""
+        reuse = (self.approximation == "mls" and self.degree == self.reconstruction_degree)
+        return ApproxSpec(self.approximation, self.degree, self.kernel, self.derivative, self.rcond,
+                          with_coeffs=reuse and self.reconstruction_degree > 0)
+
+    def reconstruction_spec(self) -> ApproxSpec:
+        """Fixed-centre MLS fit used for the reconstruction (and SPH-ALE Taylor derivatives)."""
+        return ApproxSpec("mls", self.reconstruction_degree, self.kernel, "fixed_centre", self.rcond,
+                          with_coeffs=True)
