@@ -341,6 +341,11 @@ SCHEMA_COMMON: dict[str, dict[str, Key]] = {
                                      doc="degree of the MLS reconstruction of the Riemann states "
                                          "at the pair midpoints (0 = first order, no "
                                          "reconstruction)"),
+        "reconstruction": Key(str, "taylor", choices=("taylor", "mls_direct"),
+                              doc="Riemann-state reconstruction at x_ij: taylor = U_i plus the MLS "
+                                  "derivatives of U at x_i (thesis eq. 3.11; stable on irregular "
+                                  "layouts), mls_direct = the MLS fit of the stencil evaluated at "
+                                  "x_ij (eq. 4.39 read literally; unstable on jittered layouts)"),
         "reconstruction_variables": Key(str, "conservative", choices=("conservative", "primitive"),
                                         doc="variables reconstructed at the pair midpoints"),
         "flux": Key(str, "rusanov", choices=("rusanov",),

@@ -99,10 +99,14 @@ def health(particles: Particles):
 
 
 def _axpy(a, y, b, z, dt_b, dz):
-    """a*y + b*(z + dt_b*dz) on the (x, vol, q) parts of Particles."""
+    """a*y + b*(z + dt_b*dz) on the (x, vol, q) parts of fluid particles; other particles keep
+    their state bit for bit (frozen/boundary particles are never updated)."""
     dx, dvol, dq = dz
-    return y.replace(x=a * y.x + b * (z.x + dt_b * dx), vol=a * y.vol + b * (z.vol + dt_b * dvol),
-                     q=a * y.q + b * (z.q + dt_b * dq))
+    fluid = y.kind == Kind.FLUID
+    f1, f2 = fluid[:, None], fluid
+    return y.replace(x=jnp.where(f1, a * y.x + b * (z.x + dt_b * dx), y.x),
+                     vol=jnp.where(f2, a * y.vol + b * (z.vol + dt_b * dvol), y.vol),
+                     q=jnp.where(f1, a * y.q + b * (z.q + dt_b * dq), y.q))
 
 
 def make_stage_geometry(scheme: Scheme, domain: Domain, nspec):

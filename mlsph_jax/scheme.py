@@ -25,6 +25,7 @@ FRAMES = Registry("scheme.frame")
 FRAMES.register("eulerian")("w = 0")
 FRAMES.register("lagrangian")("w = u")
 POSITION_UPDATES = ("mls", "shepard", "w_i")
+RECONSTRUCTIONS = ("taylor", "mls_direct")
 LIMITERS = Registry("scheme.limiter")
 LIMITERS.register("none")("no limiter")
 LIMITERS.register("mood")("MOOD a-posteriori order reduction")
@@ -39,6 +40,9 @@ class Scheme:
     kernel, beta:             kernel / MLS weight and h_i = beta V_i^(1/d)
     derivative:               ``full`` | ``fixed_centre`` MLS derivative
     reconstruction_degree:    polynomial degree of the Riemann-state reconstruction (0 = first order)
+    reconstruction:           ``taylor`` (U_i + MLS derivatives, thesis eq. 3.11; default) |
+                              ``mls_direct`` (the MLS fit evaluated at x_ij, eq. 4.39 read
+                              literally; unstable on irregular layouts, see docs/architecture.md)
     reconstruction_variables: ``conservative`` | ``primitive``
     flux, wave_speed, dissipation_normal: numerical flux options (:mod:`mlsph_jax.flux`)
     self_flux:                keep the -F_i . sum_j A_ij term (thesis eq. 4.36)
@@ -57,6 +61,7 @@ class Scheme:
     beta: float = 1.5
     derivative: str = "full"
     reconstruction_degree: int = 2
+    reconstruction: str = "taylor"
     reconstruction_variables: str = "conservative"
     flux: str = "rusanov"
     wave_speed: str = "rusanov_abs"
@@ -85,6 +90,9 @@ class Scheme:
             raise InputError(f"invalid scheme.beta={self.beta!r}; allowed: > 0")
         if self.dissipation_normal not in ("area", "pair"):
             raise InputError(f"invalid scheme.dissipation_normal={self.dissipation_normal!r}; allowed: area, pair")
+        if self.reconstruction not in RECONSTRUCTIONS:
+            raise InputError(f"invalid scheme.reconstruction={self.reconstruction!r}; "
+                             f"allowed: {', '.join(RECONSTRUCTIONS)}")
         if self.reconstruction_variables not in ("conservative", "primitive"):
             raise InputError(f"invalid scheme.reconstruction_variables={self.reconstruction_variables!r}; "
                              "allowed: conservative, primitive")
