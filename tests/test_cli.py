@@ -1,0 +1,75 @@
+"""The `mlsph` command line: exit codes, clear errors, and the output contract."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import pytest
+
+from mlsph_jax import config
+from mlsph_jax.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_validate_ok(capsys):
+    assert main(["validate", str(ROOT / "configs/sod_ideal_gas.toml")]) == 0
+    assert "ok" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("override, needle", [
+    ("scheme.reconstruction_degree=7", "scheme.reconstruction_degree"),
+    ("scheme.metod=sph_ale", "did you mean"),
+    ("case.n=1.5", "case.n"),
+    ("eos.gamma=abc", "eos.gamma"),
+])
+def test_bad_overrides_exit_2_and_name_the_key(override, needle, capsys):
+    rc = main(["validate", str(ROOT / "configs/sod_ideal_gas.toml"), "--set", override])
+    assert rc == 2
+    assert needle in capsys.readouterr().err
+
+
+def test_missing_config_file(capsys):
+    assert main(["run", "does/not/exist.toml"]) == 2
+    assert "does not exist" in capsys.readouterr().err
+
+
+def test_cases_lists_riemann(capsys, monkeypatch):
+    monkeypatch.chdir(ROOT)
+    assert main(["cases"]) == 0
+    out = capsys.readouterr().out
+    assert "riemann_1d" in out and "configs/riemann_r1_tait.toml" in out
+
+
+def test_run_writes_the_output_contract(tmp_path):
+    """`mlsph run CONFIG --out DIR --set ...` in a subprocess, as users and tools call it."""
+    out = tmp_path / "r1"
+    r = subprocess.run([sys.executable, "-m", "mlsph_jax.cli", "run", str(ROOT / "configs/riemann_r1_tait.toml"),
+                        "--out", str(out), "--set", "case.n=60", "output.snapshots=2"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert "l1_rho" in r.stdout  # the one-paragraph result
+    s = json.loads((out / "summary.json").read_text())
+    for k in ("case", "scheme", "n_particles", "n_steps", "t_final", "wall_time_s", "compile_time_s",
+              "status", "metrics", "conservation"):
+        assert k in s
+    assert s["status"] == "ok" and s["t_final"] == pytest.approx(1e-5)
+    with h5py.File(out / "fields.h5") as f:
+        snaps = sorted(f["snapshots"])
+        assert len(snaps) == 3
+        g = f["snapshots"][snaps[-1]]
+        assert {"x", "vol", "rho", "vel", "p", "ppd", "kind"} <= set(g)
+        assert g.attrs["t"] == pytest.approx(1e-5)
+    assert "fields.h5" in (out / "fields.xmf").read_text()
+    resolved = config.load(out / "config.toml")
+    assert resolved["case"]["n"] == 60
+    assert (out / "profiles.png").stat().st_size > 1000
+
+
+def test_config_reference_is_current():
+    """docs/config.md is generated from the schema; regenerate it when keys change."""
+    assert (ROOT / "docs/config.md").read_text() == config.config_reference_markdown()
