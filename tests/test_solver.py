@@ -17,6 +17,7 @@ from mlsph_jax.eos import get_eos, to_conservative
 from mlsph_jax.integrate import initial_carry, make_chunk, static_geometry, StepControl
 from mlsph_jax.rhs import evaluate
 from mlsph_jax.scheme import Scheme
+from mlsph_jax.cli import DEFAULT_CONFIG
 from mlsph_jax.simulation import Problem, Simulation
 
 GAS = Params({"eos.gamma": 1.4})
@@ -158,34 +159,21 @@ def _tube(tmp_path, **over):
     from mlsph_jax import config
     from mlsph_jax.cases import build_problem
 
-    sets = [f"{k}={v}" for k, v in over.items()]
-    cfg = config.loads(DEFAULT_SOD, sets)
+
+    sets = SMALL_SOD + [f"{k}={v}" for k, v in over.items()]
+    cfg = config.loads(DEFAULT_CONFIG, sets)
     return cfg, build_problem(cfg)
 
 
-DEFAULT_SOD = """
-[case]
-name = "riemann_1d"
-left = { rho = 1.0, u = 0.0, p = 1.0 }
-right = { rho = 0.125, u = 0.0, p = 0.1 }
-x_interface = 0.5
-domain = [0.0, 1.0]
-n = 40
-[eos]
-kind = "ideal_gas"
-[scheme]
-frame = "eulerian"
-reconstruction_degree = 0
-[time]
-t_end = 0.1
-"""
+# the CLI's default case (Sod), made small and Eulerian for these tests
+SMALL_SOD = ["case.n=40", "scheme.frame=eulerian", "time.t_end=0.1"]
 
 
 def test_negative_density_in_config_is_a_config_error():
     from mlsph_jax import ConfigError, config
 
     with pytest.raises(ConfigError, match=r"case.left.rho"):
-        config.loads(DEFAULT_SOD, ["case.left.rho=-1.0"])
+        config.loads(DEFAULT_CONFIG, ["case.left.rho=-1.0"])
 
 
 def test_blow_up_stops_loudly_with_last_good_snapshot(tmp_path):
@@ -214,7 +202,7 @@ def test_blow_up_stops_loudly_with_last_good_snapshot(tmp_path):
 def test_missing_eos_constant_is_named():
     from mlsph_jax import ConfigError, config
 
-    text = DEFAULT_SOD.replace('kind = "ideal_gas"', 'kind = "stiffened_gas"\ngamma = 4.4')
+    text = DEFAULT_CONFIG.replace('kind = "ideal_gas"\ngamma = 1.4', 'kind = "stiffened_gas"\ngamma = 4.4')
     with pytest.raises(ConfigError, match="eos.pc"):
         config.loads(text)
 
