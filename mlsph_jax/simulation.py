@@ -93,7 +93,7 @@ class Simulation:
         cell = None
         if problem.scheme.moving:  # room for particles to move without regrowing (recompiling)
             cell = problem.scheme.support * float(h.max()) * (2.5 if p.dim == 1 else 1.5)
-            headroom = max(headroom, 1.6)
+            headroom = max(headroom, 2.0 if p.dim == 1 else 1.6)
         self.nspec, self.nl = nb.allocate(np.asarray(p.x), h, problem.domain, support=problem.scheme.support,
                                           headroom=headroom, cell_size=cell)
         self._build()

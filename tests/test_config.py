@@ -74,7 +74,8 @@ def test_defaults_filled():
     assert s["beta"] == 0.0 and C.effective_beta(s) == 1.5
     assert C.effective_beta({**s, "method": "sph_ale"}) == 2.0
     assert C.effective_beta({**s, "beta": 1.2}) == 1.2
-    assert s["self_flux"] is True and s["frame"] == "eulerian" and s["limiter"] == "none"
+    # riemann_1d overrides the frame default: the thesis plots R1/R2 Lagrangian
+    assert s["self_flux"] is True and s["frame"] == "lagrangian" and s["limiter"] == "none"
     assert s["neighbor_headroom"] == 1.3 and s["reconstruction_degree"] == 2
     assert cfg["time"] == {"t_end": 0.2, "cfl": 0.3, "dt": 0.0, "max_steps": 1_000_000,
                            "chunk": 50, "dt_min": 1e-14}
