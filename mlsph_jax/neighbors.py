@@ -23,19 +23,27 @@ Algorithm (hashing by sorting, no dense grid)
    cost the same as a compact block.  (If the per-axis cell counts would overflow int64 the
    non-periodic coordinates are folded modulo ``2**(61 // d)``, i.e. a spatial hash; collisions
    only add far-away candidates that fail the distance test, so results stay exact.)
-3. ``argsort`` of the ids (O(N log N), O(N) memory) and the end of each run of equal ids.
-4. For every particle and each of the static ``3**d`` neighbour-cell offsets (fewer on axes with
-   one cell, and on periodic axes with 1 or 2 cells the de-duplicated set ``range(n_a)`` so that
-   no cell is visited twice), ``jnp.searchsorted`` finds the start and length of that cell in
-   the sorted id array.  Up to ``cell_capacity`` members per cell are gathered as candidates,
-   tested against the pair criterion and the hits compacted into ``capacity`` (K) slots, each
-   row sorted ascending by neighbour index and padded with ``N``.
-5. The reverse-slot map ``rev[i, k]`` (slot of ``i`` in row ``idx[i, k]``) by a vectorised
-   binary search in the sorted rows.
+3. ``argsort`` of the ids; particles are then processed in this cell-sorted order (locality),
+   and the members of every cell are contiguous in the sorted copies of ``x``, ``h`` and the
+   particle index (structure of arrays).
+4. For every particle and each static neighbour-cell offset (``3**d`` of them; only 0 on a
+   non-periodic axis with one cell, and the de-duplicated set ``range(n_a)`` on a periodic
+   axis with 1 or 2 cells so that no cell is visited twice), ``jnp.searchsorted`` finds the
+   start of that cell in the sorted id array and a run-end table its length.  One contiguous
+   window of ``cell_capacity`` members per cell is read (``dynamic_slice``) as candidates and
+   tested against the pair criterion.
+5. Hits are compacted into ``capacity`` (K) slots without a long prefix sum: the window is cut
+   into 32-bit words whose bit masks give in-word ranks by ``population_count``, and a short
+   prefix sum over the words gives the output slot.  Each row is sorted (K entries), padded
+   with ``N``, and the rows are permuted back to input order.
+6. The reverse-slot map ``rev[i, k]`` (slot of ``i`` in row ``idx[i, k]``) by a vectorised
+   binary search in the sorted rows (``searchsorted`` semantics, O(N K log K)).
 
-Complexity: time O(N log N + N * 3**d * C + N K log K), memory O(N K) plus a candidate buffer
-of ``batch * 3**d * C`` entries: for large N, particles are processed in batches with
-``jax.lax.map(..., batch_size=...)`` (``NeighborSpec.batch_size``), which bounds the buffer.
+Complexity: time O(N log N + N 3**d (log N + C) + N K log K) with C = ``cell_capacity``, i.e.
+linear in N up to the sort; memory O(N K) plus a batch buffer of ``batch * 3**d * C``
+candidates: particles are processed in batches (a ``lax.scan`` over ``vmap``-ed batches, like
+``jax.lax.map(..., batch_size=...)``; ``NeighborSpec.batch_size``), which bounds the buffer.
+Nothing is ever sized by the box volume.
 
 Allocation versus update
 ------------------------
@@ -67,16 +75,24 @@ __all__ = [
     "allocate",
     "brute_force",
     "grow",
+    "plan",
     "update",
     "update_jit",
     "update_or_grow",
 ]
 
-#: Relative enlargement of the automatically chosen cell size over ``support * max(h)``; guards
-#: the "pairs closer than the cell size are in adjacent cells" argument against round-off.
+#: Relative enlargement of the automatically chosen cell size over ``support * max(h)``; with
+#: an absolute term proportional to the coordinate magnitude (see :func:`_auto_cell_size`) it
+#: guards "pairs closer than the cell size lie in adjacent cells" against round-off.
 _CELL_MARGIN = 1e-8
-#: Candidate slots (particles x offsets x cell capacity) processed at once before batching.
-_CANDIDATE_BUDGET = 1 << 21
+#: Candidate slots (particles x offsets x cell capacity) per batch of the kernel; small enough
+#: for the batch buffers to stay cache resident (measured: 256-512 particles per batch in 3D).
+_CANDIDATE_BUDGET = 1 << 19
+#: Entries (rows x K) per batch of the reverse-slot search.
+_REV_BUDGET = 1 << 16
+#: Below this many candidate pairs allocation counts neighbours with numpy (no compilation);
+#: above, with the compiled counting kernel.
+_HOST_PAIRS = 1 << 22
 #: Largest cell count per non-periodic axis before clamping (exact integers in float64).
 _MAX_AXIS_CELLS = 1 << 52
 
@@ -110,6 +126,27 @@ class NeighborSpec:
     periodic: tuple[bool, ...]
     support: float
     batch_size: int | None
+
+    def __post_init__(self):
+        d = len(self.n_cells)
+        if not (d in (1, 2, 3) and len(self.lower) == len(self.upper) == len(self.periodic) == d):
+            raise InputError(f"invalid NeighborSpec geometry n_cells={self.n_cells}, lower="
+                             f"{self.lower}, upper={self.upper}, periodic={self.periodic}; "
+                             "allowed: tuples of equal length 1..3")
+        for name in ("capacity", "cell_capacity"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
+                raise InputError(f"invalid {name}={v!r}; allowed: an integer >= 1")
+        if any(int(n) < 1 for n in self.n_cells):
+            raise InputError(f"invalid n_cells={self.n_cells}; allowed: integers >= 1")
+        if not (math.isfinite(self.cell_size) and self.cell_size > 0):
+            raise InputError(f"invalid cell_size={self.cell_size!r}; allowed: a finite number > 0")
+        if not (math.isfinite(self.support) and self.support > 0):
+            raise InputError(f"invalid support={self.support!r}; allowed: a finite number > 0")
+        b = self.batch_size
+        if b is not None and (isinstance(b, bool) or not isinstance(b, int | np.integer) or b < 1):
+            raise InputError(f"invalid batch_size={self.batch_size!r}; allowed: None or an "
+                             "integer >= 1")
 
     @property
     def dim(self) -> int:
@@ -223,18 +260,19 @@ def _word_layout(cell_capacity: int) -> tuple[int, int]:
     return nw, -(-cell_capacity // nw)
 
 
-def _rows(x, h, g, cell_capacity: int, capacity: int, batch_size: int | None,
-          periodic_any: bool):
+def _rows(x, h, g, cell_capacity: int, capacity: int | None, batch_size: int | None):
     """Candidate search, distance test and compaction for all particles.
 
     Particles are processed in cell-sorted order (good locality).  The members of a cell are
     contiguous in the sorted arrays, so the candidates of each visited cell are read as one
     window (``dynamic_slice``) from structure-of-arrays copies of ``x`` and ``h``.  Hits are
     compacted without a long prefix sum: each cell window is split into 32-bit words whose
-    bit masks give in-word ranks by ``population_count``; a short prefix sum over the words
-    gives the output slots.  Rows are then sorted (K entries) and returned in input order.
+    bit masks give in-word ranks by ``population_count``; an exclusive sum over the (few) words
+    gives the output slots, and a scatter places the hits.  Rows are then sorted (K entries)
+    and returned in input order.
 
-    Returns ``(idx [N, K], count [N], own-cell occupancy [N])``.
+    Returns ``(idx [N, K], count [N], own-cell occupancy [N])``; with ``capacity=None`` only
+    the counts are computed and ``idx`` is ``None``.
     """
     n, d = x.shape
     K = capacity
@@ -260,6 +298,9 @@ def _rows(x, h, g, cell_capacity: int, capacity: int, batch_size: int | None,
     slot = jnp.arange(Cw, dtype=jnp.int32)
     bit = jnp.arange(wd, dtype=jnp.uint32)
     below = (jnp.uint32(1) << bit) - jnp.uint32(1)             # mask of the lower bits
+    # earlier[w, w'] = w' < w: exclusive prefix sum over the few words as a masked sum
+    # (a cumsum lowers to a reduce-window that is slow to compile on CPU)
+    earlier = np.tri(n_off * nw, k=-1, dtype=bool)
     periodic = g["periodic"]
     length = g["length"]
 
@@ -274,63 +315,90 @@ def _rows(x, h, g, cell_capacity: int, capacity: int, batch_size: int | None,
 
         r2 = jnp.zeros((n_off, Cw), x.dtype)
         for a in range(d):
-            da = cols[a][p] - window(cols[a])
-            if periodic_any:
-                da = jnp.where(periodic[a], da - length[a] * jnp.round(da / length[a]), da)
+            # minimum image on periodic axes (identity elsewhere; applied unconditionally so
+            # that one compiled kernel serves every combination of periodic axes)
+            da = minimum_image(cols[a][p] - window(cols[a]), length[a], periodic[a])
             r2 = r2 + da * da
         cut = g["support"] * jnp.maximum(hs[p], window(hs))
         hit = ((slot < cnt[:, None]) & (r2 < cut * cut)).reshape(n_off * nw, wd)
         word = jnp.sum(hit.astype(jnp.uint32) << bit, axis=1, dtype=jnp.uint32)
         in_word = jax.lax.population_count(word).astype(jnp.int32)             # [n_off*nw]
-        first = jnp.cumsum(in_word) - in_word
+        if K is None:
+            return jnp.sum(in_word, dtype=jnp.int32), cnt[g["zero"]]
+        first = jnp.sum(jnp.where(earlier, in_word, 0), axis=1)                 # exclusive
         rank = first[:, None] + jax.lax.population_count(word[:, None] & below).astype(jnp.int32)
         target = jnp.where(hit, rank, K).reshape(-1)
         row = jnp.full(K, n, jnp.int32).at[target].set(window(js).reshape(-1), mode="drop")
         return jnp.sort(row), jnp.sum(in_word, dtype=jnp.int32), cnt[g["zero"]]
 
-    p_all = jnp.arange(n, dtype=jnp.int32)
+    out = _batched(one, n, batch_size)
+    inv = jnp.zeros(n, jnp.int32).at[order].set(jnp.arange(n, dtype=jnp.int32),
+                                                 unique_indices=True)
+    out = tuple(a[inv] for a in out)
+    return out if K is not None else (None, *out)
+
+
+def _rev_batch(n: int, capacity: int, batch_size: int | None) -> int | None:
+    """Rows per batch of the reverse-slot search (cache-sized), ``None`` if unbatched."""
+    if batch_size is None:
+        return None
+    b = max(1, _REV_BUDGET // capacity)
+    return None if b >= n else b
+
+
+def _batched(f, n: int, batch_size: int | None):
+    """``vmap(f)(arange(n))`` evaluated ``batch_size`` indices at a time (a ``lax.scan`` over
+    batches, like ``lax.map(..., batch_size=...)`` but without a separately compiled remainder:
+    the last batch repeats index ``n - 1`` and the surplus is dropped)."""
     if batch_size is None or batch_size >= n:
-        rows, count, occ = jax.vmap(one)(p_all)
-    else:
-        rows, count, occ = jax.lax.map(one, p_all, batch_size=batch_size)
-    inv = jnp.zeros(n, jnp.int32).at[order].set(p_all, unique_indices=True)
-    return rows[inv], count[inv], occ[inv]
+        return jax.vmap(f)(jnp.arange(n, dtype=jnp.int32))
+    nb = -(-n // batch_size)
+    lane = jnp.arange(batch_size, dtype=jnp.int32)
+
+    def body(carry, b):
+        return carry, jax.vmap(f)(jnp.minimum(b * batch_size + lane, n - 1))
+
+    _, out = jax.lax.scan(body, None, jnp.arange(nb, dtype=jnp.int32))
+    return jax.tree_util.tree_map(lambda a: a.reshape(nb * batch_size, *a.shape[2:])[:n], out)
 
 
-def _reverse_slots(idx: jax.Array, n: int) -> jax.Array:
+def _reverse_slots(idx: jax.Array, n: int, batch_size: int | None) -> jax.Array:
     """``rev[i, k]`` = slot of ``i`` in row ``j = idx[i, k]``: a vectorised lower-bound binary
     search in the sorted rows (``searchsorted(idx[j], i)`` without materialising ``idx[j]``),
-    O(N K log K) time, O(N K) memory.  0 on padding (and where ``i`` is absent from row ``j``,
-    which only happens after an overflow)."""
-    N, K = idx.shape
-    valid = idx < n
-    base = jnp.where(valid, idx, 0).astype(jnp.int64) * K
-    me = jnp.arange(N, dtype=idx.dtype)[:, None]
+    O(N K log K) time, O(N K) memory, rows processed in batches of ``batch_size``.  0 on padding
+    (and where ``i`` is absent from row ``j``, which only happens after an overflow)."""
+    K = idx.shape[1]
     flat = idx.reshape(-1)
 
-    def step(_, lohi):
-        lo, hi = lohi
-        mid = (lo + hi) // 2
-        right = flat[base + jnp.minimum(mid, K - 1)] < me
-        return jnp.where(right, jnp.minimum(mid + 1, hi), lo), jnp.where(right, hi, mid)
+    def one(i):
+        row = idx[i]
+        valid = row < n
+        base = jnp.where(valid, row, 0).astype(jnp.int64) * K  # N * K may exceed int32
 
-    lo = jnp.zeros(idx.shape, jnp.int32)
-    hi = jnp.full(idx.shape, K, jnp.int32)
-    lo, _ = jax.lax.fori_loop(0, max(1, math.ceil(math.log2(K + 1))), step, (lo, hi))
-    hit = valid & (lo < K) & (flat[base + jnp.minimum(lo, K - 1)] == me)
-    return jnp.where(hit, lo, 0).astype(jnp.int32)
+        def step(_, lohi):
+            lo, hi = lohi
+            mid = (lo + hi) // 2
+            right = flat[base + jnp.minimum(mid, K - 1)] < i
+            return jnp.where(right, jnp.minimum(mid + 1, hi), lo), jnp.where(right, hi, mid)
+
+        lo, _ = jax.lax.fori_loop(0, max(1, math.ceil(math.log2(K + 1))), step,
+                                  (jnp.zeros(K, jnp.int32), jnp.full(K, K, jnp.int32)),
+                                  unroll=True)
+        hit = valid & (lo < K) & (flat[base + jnp.minimum(lo, K - 1)] == i)
+        return jnp.where(hit, lo, 0).astype(jnp.int32)
+
+    return _batched(one, idx.shape[0], batch_size)
 
 
-@functools.partial(jax.jit, static_argnames=("capacity", "cell_capacity", "batch_size",
-                                             "periodic_any"))
-def _update_kernel(x, h, g, *, capacity: int, cell_capacity: int, batch_size: int | None,
-                   periodic_any: bool) -> NeighborList:
+@functools.partial(jax.jit, static_argnames=("capacity", "cell_capacity", "batch_size"))
+def _update_kernel(x, h, g, *, capacity: int, cell_capacity: int,
+                   batch_size: int | None) -> NeighborList:
     n = x.shape[0]
-    idx, count, occ = _rows(x, h, g, cell_capacity, capacity, batch_size, periodic_any)
+    idx, count, occ = _rows(x, h, g, cell_capacity, capacity, batch_size)
     overflow = ((jnp.max(count) > capacity) | (jnp.max(occ) > cell_capacity)
                 | jnp.any(g["support"] * h > g["cell_size"]))
-    return NeighborList(idx=idx, mask=idx < n, rev=_reverse_slots(idx, n), count=count,
-                        overflow=overflow)
+    rev = _reverse_slots(idx, n, _rev_batch(n, capacity, batch_size))
+    return NeighborList(idx=idx, mask=idx < n, rev=rev, count=count, overflow=overflow)
 
 
 def update(x: jax.Array, h: jax.Array, spec: NeighborSpec) -> NeighborList:
@@ -346,8 +414,7 @@ def update(x: jax.Array, h: jax.Array, spec: NeighborSpec) -> NeighborList:
     """
     x = jnp.asarray(x, float)
     return _update_kernel(x, jnp.asarray(h, x.dtype), _geometry(spec), capacity=spec.capacity,
-                          cell_capacity=spec.cell_capacity, batch_size=spec.batch_size,
-                          periodic_any=any(spec.periodic))
+                          cell_capacity=spec.cell_capacity, batch_size=spec.batch_size)
 
 
 #: ``jax.jit(update, static_argnames="spec")``.
@@ -402,35 +469,52 @@ def _batch_size(n: int, n_off: int, cell_capacity: int) -> int | None:
     return None if b >= n else int(b)
 
 
-def _host_counts(xa: np.ndarray, ha: np.ndarray, spec: NeighborSpec) -> tuple[np.ndarray, int]:
-    """Numpy cell-list pass (no compilation): exact neighbour counts and max cell occupancy."""
+@functools.partial(jax.jit, static_argnames=("cell_capacity", "batch_size"))
+def _count_kernel(x, h, g, *, cell_capacity: int, batch_size: int | None):
+    _, count, occ = _rows(x, h, g, cell_capacity, None, batch_size)
+    return count, occ
+
+
+def measure(xa: np.ndarray, ha: np.ndarray, spec: NeighborSpec) -> tuple[np.ndarray, int]:
+    """Exact neighbour counts and the maximum cell occupancy of a configuration (host side).
+
+    The cell occupancy comes from numpy.  Counts too: a numpy cell-list pass when there are
+    few candidate pairs (no compilation, the common case in tests and small runs), else the
+    compiled counting kernel with ``cell_capacity`` equal to the measured occupancy.
+    """
     g = _geometry(spec)
     n = xa.shape[0]
     coords = _cell_coords(xa, g, np)
     ids = _linear_ids(coords, g, np)
     order = np.argsort(ids, kind="stable")
     cells, first, occ = np.unique(ids[order], return_index=True, return_counts=True)
-    count = np.zeros(n, np.int64)
-    chunk = max(1, _CANDIDATE_BUDGET // int(occ.max()))
-    for s in range(0, n, chunk):
-        i = np.arange(s, min(n, s + chunk))
-        for off in g["offsets"]:
-            nid = _linear_ids(coords[i] + off, g, np)
-            k = np.minimum(np.searchsorted(cells, nid), cells.size - 1)
-            cnt = np.where(cells[k] == nid, occ[k], 0)
-            total = int(cnt.sum())
-            if total == 0:
-                continue
-            ii = np.repeat(i, cnt)
-            within = np.arange(total) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-            j = order[np.repeat(first[k], cnt) + within]
-            dx = xa[ii] - xa[j]
-            L = g["length"]
-            dx = np.where(g["periodic"], dx - L * np.round(dx / L), dx)
-            cut = spec.support * np.maximum(ha[ii], ha[j])
-            hit = np.sum(dx * dx, axis=-1) < cut * cut
-            count[s:s + i.size] += np.bincount(ii[hit] - s, minlength=i.size)
-    return count, int(occ.max())
+    max_occ = int(occ.max())
+    # start / length of every visited cell, per (particle, offset)
+    nid = _linear_ids(coords[:, None, :] + g["offsets"][None, :, :], g, np)    # [N, n_off]
+    k = np.minimum(np.searchsorted(cells, nid), cells.size - 1)
+    cnt = np.where(cells[k] == nid, occ[k], 0)
+    total = int(cnt.sum())
+    if total > _HOST_PAIRS:
+        count, _ = _count_kernel(jnp.asarray(xa), jnp.asarray(ha), g, cell_capacity=max_occ,
+                                 batch_size=_batch_size(n, len(g["offsets"]), max_occ))
+        return np.asarray(count).astype(np.int64), max_occ
+    cnt, start = cnt.reshape(-1), first[k].reshape(-1)
+    ii = np.repeat(np.repeat(np.arange(n), len(g["offsets"])), cnt)
+    within = np.arange(total) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    j = order[np.repeat(start, cnt) + within]
+    dx = xa[ii] - xa[j]
+    L = g["length"]
+    dx = np.where(g["periodic"], dx - L * np.round(dx / L), dx)
+    cut = spec.support * np.maximum(ha[ii], ha[j])
+    hit = np.sum(dx * dx, axis=-1) < cut * cut
+    return np.bincount(ii[hit], minlength=n), max_occ
+
+
+def _auto_cell_size(need: float, xa: np.ndarray, domain: Domain) -> float:
+    """``support * max(h)`` enlarged by a relative margin and by a multiple of the round-off of
+    the cell coordinates ``(x - lower) / w`` (which grows with the coordinate magnitude)."""
+    span = max(max(domain.length), float(np.max(np.abs(xa - np.asarray(domain.lower)))))
+    return need * (1.0 + _CELL_MARGIN) + 16.0 * float(np.finfo(np.float64).eps) * span
 
 
 def _size(xa: np.ndarray, ha: np.ndarray, domain: Domain, support: float, headroom: float,
@@ -444,7 +528,7 @@ def _size(xa: np.ndarray, ha: np.ndarray, domain: Domain, support: float, headro
                         upper=tuple(float(v) for v in domain.upper),
                         periodic=tuple(bool(p) for p in domain.periodic),
                         support=float(support), batch_size=None)
-    count, occ = _host_counts(xa, ha, spec)
+    count, occ = measure(xa, ha, spec)
     C = min(n, max(min_cell_capacity, math.ceil(occ * headroom)))
     if capacity is None:
         capacity = min(n, max(min_capacity, math.ceil(int(count.max()) * headroom)))
@@ -452,15 +536,14 @@ def _size(xa: np.ndarray, ha: np.ndarray, domain: Domain, support: float, headro
                                batch_size=_batch_size(n, len(_geometry(spec)["offsets"]), C))
 
 
-def allocate(x, h, domain: Domain, support: float = 2.0, headroom: float = 1.3,
-             capacity: int | None = None,
-             cell_size: float | None = None) -> tuple[NeighborSpec, NeighborList]:
-    """Size a :class:`NeighborSpec` for the configuration ``(x, h)`` and build the first list.
+def plan(x, h, domain: Domain, support: float = 2.0, headroom: float = 1.3,
+         capacity: int | None = None, cell_size: float | None = None) -> NeighborSpec:
+    """Size a :class:`NeighborSpec` for the configuration ``(x, h)`` without building a list.
 
-    Host side (numpy sizing pass, not jit-able).  ``cell_size`` defaults to
-    ``support * max(h) * (1 + 1e-8)``; pass a larger value so that particles may move and ``h``
-    grow without regrowth.  ``cell_capacity = ceil(max cell occupancy * headroom)`` and, unless
-    ``capacity`` is given, ``capacity = ceil(max neighbour count * headroom)``; both <= N.
+    Host side (numpy; not jit-able).  ``cell_size`` defaults to ``support * max(h) * (1 +
+    1e-8)``; pass a larger value so that particles may move and ``h`` grow without regrowth.
+    ``cell_capacity = ceil(max cell occupancy * headroom)`` and, unless ``capacity`` is given,
+    ``capacity = ceil(max neighbour count * headroom)``; both are at most N.
 
     Raises :class:`InputError` for non-finite positions, ``h <= 0`` or non-finite, shape or
     dimension mismatches with ``domain``, and invalid ``support``, ``headroom``, ``capacity``
@@ -477,14 +560,26 @@ def allocate(x, h, domain: Domain, support: float = 2.0, headroom: float = 1.3,
         capacity = int(capacity)
     need = support * float(ha.max())
     if cell_size is None:
-        cs = need * (1.0 + _CELL_MARGIN)
+        cs = _auto_cell_size(need, xa, domain)
     else:
         cs = _check_number("cell_size", cell_size, 0.0, strict=True)
         if cs < need:
             raise InputError(f"invalid cell_size={cell_size!r}; allowed: >= support * max(h) = "
                              f"{need!r}")
-    spec = _size(xa, ha, domain, support, headroom, cs, capacity)
-    return spec, update(xa, ha, spec)
+    return _size(xa, ha, domain, support, headroom, cs, capacity)
+
+
+def allocate(x, h, domain: Domain, support: float = 2.0, headroom: float = 1.3,
+             capacity: int | None = None,
+             cell_size: float | None = None) -> tuple[NeighborSpec, NeighborList]:
+    """Size a :class:`NeighborSpec` for ``(x, h)`` (see :func:`plan`) and build the first list.
+
+    Host side.  Returns ``(spec, update(x, h, spec))``; check ``overflow`` if ``capacity`` was
+    given explicitly.  Raises :class:`InputError` for bad input (see :func:`plan`).
+    """
+    spec = plan(x, h, domain, support=support, headroom=headroom, capacity=capacity,
+                cell_size=cell_size)
+    return spec, update(np.asarray(x, np.float64), np.asarray(h, np.float64), spec)
 
 
 def grow(spec: NeighborSpec, x, h, headroom: float = 1.3) -> NeighborSpec:
@@ -494,7 +589,7 @@ def grow(spec: NeighborSpec, x, h, headroom: float = 1.3) -> NeighborSpec:
     """
     xa, ha = _check_xh(x, h, spec.dim)
     headroom = _check_number("headroom", headroom, 1.0, strict=False)
-    cs = max(spec.cell_size, spec.support * float(ha.max()) * (1.0 + _CELL_MARGIN))
+    cs = max(spec.cell_size, _auto_cell_size(spec.support * float(ha.max()), xa, spec.domain))
     return _size(xa, ha, spec.domain, spec.support, headroom, cs, None,
                  min_capacity=spec.capacity, min_cell_capacity=spec.cell_capacity)
 
@@ -516,7 +611,7 @@ def update_or_grow(x, h, spec: NeighborSpec, max_tries: int = 3,
         nl = update(xa, ha, spec)
     if not bool(nl.overflow):
         return spec, nl
-    _, occ = _host_counts(xa, ha, spec)
+    _, occ = measure(xa, ha, spec)
     raise NeighborOverflowError(
         f"neighbour list still overflows after {max_tries} regrowths: max count "
         f"{int(np.max(np.asarray(nl.count)))} vs capacity={spec.capacity}, max cell occupancy "

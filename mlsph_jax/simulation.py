@@ -201,7 +201,7 @@ class Simulation:
         old = self.nspec
         xa = np.asarray(p.x)
         h = self.problem.scheme.beta * np.asarray(p.vol) ** (1.0 / p.dim)
-        counts, occ = nb._measure(xa, h, old)
+        counts, occ = nb.measure(xa, h, old)
         # how close the last good state is to each limit; grow those within 20 % of it
         use = {"capacity": counts.max() / old.capacity, "cell_capacity": occ / old.cell_capacity,
                "cell_size": old.support * h.max() / old.cell_size}
