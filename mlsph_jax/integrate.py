@@ -72,14 +72,17 @@ class Carry:
 
 def cfl_dt(particles: Particles, params: Params, scheme: Scheme, cfl: float):
     """C min_i V_i^(1/d) / (|u_i - w_i| + c_i) over fluid particles (SPEC §7.1)."""
+    return cfl * jnp.min(_local_dt(particles, params, scheme))
+
+
+def _local_dt(particles: Particles, params: Params, scheme: Scheme):
     eos = get_eos(scheme.eos)
     U = particles.U
     prim = to_primitive(U, eos, params)
     w = frame_velocity(U, particles.kind, scheme, params)
     speed = jnp.linalg.norm(prim.vel - w, axis=-1) + prim.c
     dxi = particles.vol ** (1.0 / particles.dim)
-    local = jnp.where(particles.kind == Kind.FLUID, dxi / speed, jnp.inf)
-    return cfl * jnp.min(local)
+    return jnp.where(particles.kind == Kind.FLUID, dxi / speed, jnp.inf)
 
 
 def health(particles: Particles):
@@ -171,7 +174,10 @@ def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: in
                 newp, overflow = ssp_rk3_step(c.particles, params, dt, scheme, geom_fn, stage_hook)
                 st, bad = health(newp)
                 st = jnp.where(overflow, Status.NEIGHBOR_OVERFLOW, st)
-                st = jnp.where((dt < control.dt_min) & ~last, Status.DT_UNDERFLOW, st).astype(jnp.int32)
+                underflow = (dt < control.dt_min) & ~last
+                st = jnp.where(underflow, Status.DT_UNDERFLOW, st).astype(jnp.int32)
+                # for an underflow, report the particle that limits the CFL step
+                bad = jnp.where(underflow, jnp.argmin(_local_dt(c.particles, params, scheme)), bad).astype(jnp.int32)
                 ok = st == Status.OK
                 keep = lambda new, old: jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, old)
                 t_new = jnp.where(last, t_stop, c.t + dt)

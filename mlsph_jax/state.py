@@ -91,6 +91,10 @@ def make_particles(x, vol, U, kind=None, ppd=None) -> Particles:
     if bad.size:
         raise InputError(f"invalid vol={float(vol[bad[0]])!r} at particle {int(bad[0])}; "
                          "allowed: volumes > 0")
+    bad = np.flatnonzero(np.asarray(U[:, 0]) <= 0)
+    if bad.size:
+        raise InputError(f"invalid density U[:, 0]={float(U[bad[0], 0])!r} at particle {int(bad[0])} "
+                         f"({bad.size} particles); allowed: densities > 0")
     kind = jnp.zeros(n, jnp.int32) if kind is None else jnp.asarray(kind, jnp.int32)
     ppd = jnp.full(n, 3, jnp.int32) if ppd is None else jnp.asarray(ppd, jnp.int32)
     return Particles(x=x, vol=vol, q=vol[:, None] * U, kind=kind, ppd=ppd)

@@ -151,6 +151,8 @@ def test_initial_state_errors():
         make_particles(x, np.r_[np.ones(9), 0.0], U)
     with pytest.raises(mlsph_jax.InputError, match="non-finite U at particle 3"):
         make_particles(x, np.ones(10), np.where(np.arange(10)[:, None] == 3, np.nan, U))
+    with pytest.raises(mlsph_jax.InputError, match="density .* at particle 4"):
+        make_particles(x, np.ones(10), np.where(np.arange(10)[:, None] == 4, -1.0, U))
     with pytest.raises(mlsph_jax.InputError, match="non-finite x"):
         make_particles(np.where(np.arange(10)[:, None] == 2, np.inf, x), np.ones(10), U)
 
@@ -158,7 +160,6 @@ def test_initial_state_errors():
 def _tube(tmp_path, **over):
     from mlsph_jax import config
     from mlsph_jax.cases import build_problem
-
 
     sets = SMALL_SOD + [f"{k}={v}" for k, v in over.items()]
     cfg = config.loads(DEFAULT_CONFIG, sets)
@@ -197,6 +198,16 @@ def test_blow_up_stops_loudly_with_last_good_snapshot(tmp_path):
         for k in ("rho", "p", "vel", "x"):
             assert np.all(np.isfinite(g[k][()]))
         assert np.all(g["rho"][()] > 0)
+
+
+def test_time_step_underflow_stops_the_run(tmp_path):
+    """dt below time.dt_min * t_end is a failure, not an endless loop of tiny steps."""
+    from mlsph_jax.simulation import run_problem
+
+    cfg, pb = _tube(tmp_path, **{"time.dt_min": 0.5})
+    with pytest.raises(mlsph_jax.SimulationError, match="time step underflow") as ei:
+        run_problem(pb, cfg, out_dir=tmp_path, quiet=True)
+    assert ei.value.step == 1 and ei.value.time == 0.0
 
 
 def test_missing_eos_constant_is_named():
