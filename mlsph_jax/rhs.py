@@ -157,7 +157,7 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme):
 
     primitive = scheme.reconstruction_variables == "primitive"
     F = primitive_vector(U, eos, params) if primitive else U
-    Fm, Fp = reconstruct(F, geom, scheme.reconstruction_degree, scheme.method == "sph_ale", particles.ppd)
+    Fm, Fp = reconstruct(F, geom, scheme.reconstruction_degree, scheme.reconstruction == "taylor", particles.ppd)
     if primitive:
         Um, Up = from_primitive_vector(Fm, eos, params), from_primitive_vector(Fp, eos, params)
     else:
