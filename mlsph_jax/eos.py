@@ -147,3 +147,17 @@ def from_primitive_vector(W, eos: EOS, params):
     d = W.shape[-1] - (2 if eos.has_energy else 1)
     p = W[..., 1 + d] if eos.has_energy else None
     return to_conservative(W[..., 0], W[..., 1:1 + d], p, eos, params)
+
+
+def conservative_components(W, eos: EOS, params):
+    """:func:`from_primitive_vector` on a list of component arrays ``W = [rho, u.., (p)]``
+    (structure of arrays); returns the list ``[rho, rho u.., (rho E)]``."""
+    d = len(W) - (2 if eos.has_energy else 1)
+    rho, vel = W[0], W[1:1 + d]
+    out = [rho] + [rho * u for u in vel]
+    if eos.has_energy:
+        ke = vel[0] * vel[0]
+        for u in vel[1:]:
+            ke = ke + u * u
+        out.append(rho * (eos.internal_energy(rho, W[1 + d], params) + 0.5 * ke))
+    return out

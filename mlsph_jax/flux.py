@@ -20,8 +20,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from .eos import EOS, Primitive, to_primitive
-from .kernels import safe_norm
+from .eos import EOS, Primitive
 from .registry import Registry
 
 WAVE_SPEEDS = Registry("scheme.wave_speed")
@@ -42,31 +41,80 @@ def ale_flux_dot(U, pr: Primitive, w, a, eos: EOS):
     return jnp.concatenate(parts, axis=-1)
 
 
+def _dot(u, v):
+    s = u[0] * v[0]
+    for a in range(1, len(u)):
+        s = s + u[a] * v[a]
+    return s
+
+
+def primitive_components(U, eos: EOS, params):
+    """``(vel, p, c)`` of states given as a list of component arrays ``[rho, rho u.., (rho E)]``.
+
+    Same formulas as :func:`mlsph_jax.eos.to_primitive` with one reciprocal of rho per state
+    (the velocity and energy are products with it), so that XLA fuses the whole pair flux into
+    one loop.
+    """
+    d = len(U) - (2 if eos.has_energy else 1)
+    rho = U[0]
+    inv = 1.0 / rho
+    vel = [U[1 + a] * inv for a in range(d)]
+    e = U[1 + d] * inv - 0.5 * _dot(vel, vel) if eos.has_energy else jnp.zeros_like(rho)
+    p = eos.pressure(rho, e, params)
+    return vel, p, eos.sound_speed(rho, p, params)
+
+
+def rusanov_components(Um, Up, w, A, n_pair, eos: EOS, params, *, wave_speed: str = "rusanov_abs",
+                       normal: str = "area"):
+    """G_ij . A_ij on lists of component arrays (structure of arrays), see :func:`rusanov_dot_area`.
+
+    ``Um``/``Up``: lists of nv arrays; ``w``: list of d arrays or ``None`` (w = 0); ``A`` and
+    ``n_pair``: lists of d arrays (``n_pair`` only read for ``normal == "pair"``).
+    Returns a list of nv arrays.
+    """
+    d = len(A)
+    velm, pm, cm = primitive_components(Um, eos, params)
+    velp, pp, cp = primitive_components(Up, eos, params)
+    relm = velm if w is None else [velm[k] - w[k] for k in range(d)]
+    relp = velp if w is None else [velp[k] - w[k] for k in range(d)]
+    vam, vap = _dot(relm, A), _dot(relp, A)          # (u -+ w) . A
+    if normal == "area":
+        r2 = _dot(A, A)
+        pos = r2 > 0
+        amag = jnp.where(pos, jnp.sqrt(jnp.where(pos, r2, 1.0)), 0.0)     # safe_norm(A)
+        den = jnp.where(amag > 0, amag, 1.0)
+        vm, vp, n_dot_A = vam / den, vap / den, amag
+    else:
+        vm, vp, n_dot_A = _dot(relm, n_pair), _dot(relp, n_pair), _dot(n_pair, A)
+    if wave_speed == "rusanov_abs":
+        S = jnp.maximum(jnp.abs(vm) + cm, jnp.abs(vp) + cp)
+    elif wave_speed == "printed_ch3":
+        S = jnp.maximum(vp + cp, vm - cm)
+    else:  # printed_ch4: c_ij and (u - w).n from the interface average
+        v = 0.5 * (vm + vp)
+        cij = 0.5 * (cm + cp)
+        S = jnp.maximum(jnp.maximum(v + cij, v - cij), v)
+    diss = 0.5 * (S * n_dot_A)
+    out = [0.5 * (Um[0] * vam + Up[0] * vap) - diss * (Up[0] - Um[0])]
+    for k in range(d):
+        out.append(0.5 * ((Um[1 + k] * vam + pm * A[k]) + (Up[1 + k] * vap + pp * A[k]))
+                   - diss * (Up[1 + k] - Um[1 + k]))
+    if eos.has_energy:
+        out.append(0.5 * ((Um[-1] * vam + pm * _dot(velm, A)) + (Up[-1] * vap + pp * _dot(velp, A)))
+                   - diss * (Up[-1] - Um[-1]))
+    return out
+
+
 def rusanov_dot_area(Um, Up, w_ij, A, n_pair, eos: EOS, params, *, wave_speed: str = "rusanov_abs",
                      normal: str = "area"):
     """G_ij . A_ij for reconstructed states ``Um`` (i side) and ``Up`` (j side), ``[..., nv]``.
 
     ``n_pair`` is the unit vector from i to j (used when ``normal == "pair"`` and by nothing
-    else).  Pairs with A = 0 give exactly zero.
+    else).  Pairs with A = 0 give exactly zero.  (Array front end of
+    :func:`rusanov_components`.)
     """
-    pm = to_primitive(Um, eos, params)
-    pp = to_primitive(Up, eos, params)
-    central = 0.5 * (ale_flux_dot(Um, pm, w_ij, A, eos) + ale_flux_dot(Up, pp, w_ij, A, eos))
-    if normal == "area":
-        amag = safe_norm(A)
-        n = A / jnp.where(amag > 0, amag, 1.0)[..., None]
-        n_dot_A = amag
-    else:
-        n = n_pair
-        n_dot_A = jnp.sum(n_pair * A, axis=-1)
-    vm = jnp.sum((pm.vel - w_ij) * n, axis=-1)
-    vp = jnp.sum((pp.vel - w_ij) * n, axis=-1)
-    if wave_speed == "rusanov_abs":
-        S = jnp.maximum(jnp.abs(vm) + pm.c, jnp.abs(vp) + pp.c)
-    elif wave_speed == "printed_ch3":
-        S = jnp.maximum(vp + pp.c, vm - pm.c)
-    else:  # printed_ch4: c_ij and (u - w).n from the interface average
-        v = 0.5 * (vm + vp)
-        cij = 0.5 * (pm.c + pp.c)
-        S = jnp.maximum(jnp.maximum(v + cij, v - cij), v)
-    return central - 0.5 * (S * n_dot_A)[..., None] * (Up - Um)
+    comps = lambda a: [a[..., k] for k in range(a.shape[-1])]
+    out = rusanov_components(comps(Um), comps(Up), None if w_ij is None else comps(w_ij), comps(A),
+                             None if n_pair is None else comps(n_pair), eos, params,
+                             wave_speed=wave_speed, normal=normal)
+    return jnp.stack(out, axis=-1)

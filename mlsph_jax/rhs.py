@@ -22,6 +22,19 @@ The j-side state is never recomputed: it is the i-side state of the reverse pair
 the neighbour list's reverse-slot map.  The self term s (F_w)_i (``scheme.self_flux``) keeps
 uniform states exact on any layout; without it, the pair terms are antisymmetric and the totals
 of V U are conserved to round-off (SPEC §5.5).
+
+Implementation (performance on CPU).  Everything per pair is written on [rows, K] "planes"
+(structure of arrays, one array per component) and evaluated in blocks of rows
+(:func:`mlsph_jax.approximation.row_blocks`) so that the temporaries stay in cache:
+
+1. per block, the fit a_i = C_i F_S (all m x nv sums in one variadic reduction) and the i-side
+   midpoint states, stored as ``own[N, K, nv]``;
+2. per block, the j-side states by a flat gather ``own.reshape(N K, nv)[j K + rev]``, the
+   Rusanov flux, and all sums over the stencil (sum_j G.A, sum_j A, dV, dx) as one variadic
+   reduction, which XLA:CPU fuses into a single loop.
+
+The results equal the straightforward array formulation to round-off
+(tests/test_rhs_equivalence_perf.py); experiments/bench_rhs.py measures the throughput.
 """
 
 from __future__ import annotations
@@ -33,10 +46,11 @@ import jax
 import jax.numpy as jnp
 
 from . import approximation as apx
-from .approximation import basis
-from .eos import from_primitive_vector, get_eos, primitive_vector, to_primitive
-from .flux import ale_flux_dot, rusanov_dot_area
-from .kernels import get_kernel, safe_norm
+from .approximation import mls
+from .approximation import rows as _rows
+from .eos import conservative_components, get_eos, primitive_vector, to_primitive
+from .flux import ale_flux_dot, rusanov_components
+from .kernels import get_kernel
 from .scheme import Scheme
 from .state import Domain, Kind, Params, Particles
 
@@ -66,7 +80,7 @@ class Geometry:
     @property
     def jsafe(self):
         n = self.idx.shape[0]
-        return jnp.where(self.mask, self.idx, jnp.arange(n)[:, None])
+        return jnp.where(self.mask, self.idx, jnp.arange(n, dtype=self.idx.dtype)[:, None])
 
 
 def _box(domain: Domain):
@@ -81,6 +95,18 @@ def _shepard_weights(dx, h, jsafe, mask, vol, kernel):
     return w / jnp.sum(w, axis=1, keepdims=True)
 
 
+def _reverse_gather(a, jsafe, rev):
+    """``a[j, rev[i, k]]`` for ``a[N, K, ...]`` (the value of the reverse pair) as a flat gather."""
+    n, k = a.shape[:2]
+    flat = a.reshape((n * k,) + a.shape[2:])
+    return flat[_flat_reverse_index(jsafe, rev, k)]
+
+
+def _flat_reverse_index(jsafe, rev, k: int):
+    dt = jnp.int64 if jsafe.shape[0] * k >= 2**31 else jnp.int32
+    return jsafe.astype(dt) * k + rev.astype(dt)
+
+
 def geometry(x, vol, nl, scheme: Scheme, domain: Domain) -> Geometry:
     """Area vectors, offsets, reconstruction coefficients and interpolation weights."""
     n, d = x.shape
@@ -88,16 +114,16 @@ def geometry(x, vol, nl, scheme: Scheme, domain: Domain) -> Geometry:
     h = apx.smoothing_length(vol, scheme.beta, d)
     idx, mask, rev = nl.idx, nl.mask, nl.rev
     dx = apx.pair_offsets(x, idx, mask, L, per)
-    self_i = jnp.arange(n)[:, None]
+    self_i = jnp.arange(n, dtype=idx.dtype)[:, None]
     jsafe = jnp.where(mask, idx, self_i)
     pair_mask = mask & (idx != self_i)
     kern = get_kernel(scheme.kernel)
     coeffs = None
     if scheme.method == "mlsph_ale":
         aspec = scheme.area_spec()
-        ops = apx.build(x, h, vol, idx, mask, aspec, L, per)
+        ops = apx.build_from_offsets(dx, h, vol, idx, mask, aspec)
         G = ops.gradients                      # grad N_j(x_i) = grad N_ji
-        G_rev = G[jsafe, rev]                  # grad N_i(x_j) = grad N_ij
+        G_rev = _reverse_gather(G, jsafe, rev)  # grad N_i(x_j) = grad N_ij
         A = vol[:, None, None] * G - vol[jsafe][..., None] * G_rev      # thesis eq. 5.77
         interp = ops.values
         if aspec.with_coeffs:
@@ -110,7 +136,8 @@ def geometry(x, vol, nl, scheme: Scheme, domain: Domain) -> Geometry:
     if scheme.position_update == "shepard" or (interp is None and scheme.position_update == "mls"):
         interp = _shepard_weights(dx, h, jsafe, mask, vol, kern)
     if coeffs is None and scheme.reconstruction_degree > 0:
-        coeffs = apx.build(x, h, vol, idx, mask, scheme.reconstruction_spec(), L, per).coeffs
+        coeffs = apx.build_from_offsets(dx, h, vol, idx, mask, scheme.reconstruction_spec(),
+                                        coeffs_only=True).coeffs
     A = jnp.where(pair_mask[..., None], A, 0.0)
     return Geometry(idx, mask, rev, pair_mask, dx, A, h, coeffs, interp, nl.overflow)
 
@@ -125,23 +152,56 @@ def frame_velocity(U, kind, scheme: Scheme, params: Params):
     return jnp.where((kind == Kind.FLUID)[:, None], vel, 0.0)
 
 
+def _cols(a):
+    return [a[..., k] for k in range(a.shape[-1])]
+
+
+def _own_states(F, geom: Geometry, degree: int, taylor: bool):
+    """i-side midpoint states ``own[N, K, nv]``: p(xi_ij)^T C_i F_S (``taylor``: F_i + P_i(xi) -
+    P_i(0)), with xi_ij = (x_ij - x_i)/h_i; one blocked pass (fit and evaluation)."""
+    n, k = geom.idx.shape
+    nv = F.shape[1]
+    jsafe = geom.jsafe
+    C = geom.coeffs
+    m = C.shape[1]
+    Fc = _cols(F)
+
+    def block(s, b):
+        jb = _rows(jsafe, s, b)
+        Cb = _rows(C, s, b)
+        Fj = [c[jb] for c in Fc]
+        a = mls.stencil_sums([Cb[:, mm, :] * Fj[v] for mm in range(m) for v in range(nv)])
+        a = [t[:, None] for t in a]                            # a_i = C_i F_S, [b, 1] each
+        dx = _rows(geom.dx, s, b)
+        hb = _rows(geom.h, s, b)[:, None]
+        P = mls.monomial_planes([(0.5 * dx[..., c]) / hb for c in range(dx.shape[-1])], degree)
+        own = []
+        for v in range(nv):
+            o = a[v]
+            for mm in range(1, m):
+                o = o + P[mm] * a[mm * nv + v]
+            if taylor:
+                o = _rows(Fc[v], s, b)[:, None] + o - a[v]       # F_i + P_i(xi) - P_i(0)
+            own.append(jnp.broadcast_to(o, jb.shape))
+        return (jnp.stack(own, axis=-1),)
+
+    (own,) = apx.row_blocks(block, n, apx.block_rows(n, k), [((n, k, nv), F.dtype)])
+    return own
+
+
 def reconstruct(F, geom: Geometry, degree: int, taylor: bool, ppd):
     """Riemann states of the field ``F[N, nv]`` at the pair midpoints: (i side, j side) ``[N,K,nv]``.
 
     ``degree`` 0 is first order.  Pairs with min(ppd_i, ppd_j) == 0 fall back to first order
-    (the MOOD parachute).
+    (the MOOD parachute).  (:func:`rhs` evaluates the same states block by block.)
     """
     jsafe = geom.jsafe
     Fm0 = jnp.broadcast_to(F[:, None, :], geom.dx.shape[:2] + F.shape[1:])
     Fp0 = F[jsafe]
     if degree == 0:
         return Fm0, Fp0
-    a = jnp.einsum("nmk,nkv->nmv", geom.coeffs, Fp0)          # a_i = C_i F_S
-    xi = 0.5 * geom.dx / geom.h[:, None, None]                 # (x_ij - x_i) / h_i
-    own = jnp.einsum("nkm,nmv->nkv", basis.evaluate(xi, degree), a)
-    if taylor:
-        own = Fm0 + own - a[:, None, 0, :]                     # F_i + P_i(xi) - P_i(0)
-    other = own[jsafe, geom.rev]                               # j-side state = i-side of (j, i)
+    own = _own_states(F, geom, degree, taylor)
+    other = _reverse_gather(own, jsafe, geom.rev)             # j-side state = i-side of (j, i)
     high = (jnp.minimum(ppd[:, None], ppd[jsafe]) > 0)[..., None]
     return jnp.where(high, own, Fm0), jnp.where(high, other, Fp0)
 
@@ -150,36 +210,82 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme):
     """Time derivatives ``(dx/dt, dV/dt, d(VU)/dt)`` for the given geometry (pure, jit-able)."""
     eos = get_eos(scheme.eos)
     x, vol, q, kind = particles.x, particles.vol, particles.q, particles.kind
+    n, d = x.shape
+    k = geom.idx.shape[1]
     U = q / vol[:, None]
     prim = to_primitive(U, eos, params)
     w = frame_velocity(U, kind, scheme, params)
     jsafe = geom.jsafe
+    eulerian = scheme.frame == "eulerian"
+    interp = not eulerian and scheme.position_update != "w_i"
 
     primitive = scheme.reconstruction_variables == "primitive"
     F = primitive_vector(U, eos, params) if primitive else U
-    Fm, Fp = reconstruct(F, geom, scheme.reconstruction_degree, scheme.reconstruction == "taylor", particles.ppd)
-    if primitive:
-        Um, Up = from_primitive_vector(Fm, eos, params), from_primitive_vector(Fp, eos, params)
-    else:
-        Um, Up = Fm, Fp
+    nv = F.shape[1]
+    degree = scheme.reconstruction_degree
+    Fc, wc, ppd = _cols(F), _cols(w), particles.ppd
+    taylor = scheme.reconstruction == "taylor"
+    if degree > 0:
+        own = _own_states(F, geom, degree, taylor)             # i-side states, [N, K, nv]
+        own_flat = own.reshape(n * k, nv)
 
-    w_ij = 0.5 * (w[:, None, :] + w[jsafe])
-    r = safe_norm(geom.dx)
-    n_pair = geom.dx / jnp.where(r > 0, r, 1.0)[..., None]
-    GA = rusanov_dot_area(Um, Up, w_ij, geom.A, n_pair, eos, params,
-                          wave_speed=scheme.wave_speed, normal=scheme.dissipation_normal)
-    GA = jnp.where(geom.pair_mask[..., None], GA, 0.0)
-    dq = -jnp.sum(GA, axis=1)
+    def block(s, b):
+        jb = _rows(jsafe, s, b)
+        Fi = [_rows(c, s, b)[:, None] for c in Fc]
+        Fj = [c[jb] for c in Fc]
+        if degree > 0:
+            flat = _flat_reverse_index(jb, _rows(geom.rev, s, b), k)
+            ob = _cols(_rows(own, s, b))
+            oj = _cols(own_flat[flat])                                       # own[j, rev]
+            high = jnp.minimum(_rows(ppd, s, b)[:, None], ppd[jb]) > 0
+            Fm = [jnp.where(high, ob[v], Fi[v]) for v in range(nv)]
+            Fp = [jnp.where(high, oj[v], Fj[v]) for v in range(nv)]
+        else:
+            Fm, Fp = [jnp.broadcast_to(f, jb.shape) for f in Fi], Fj
+        if primitive:
+            Fm = conservative_components(Fm, eos, params)
+            Fp = conservative_components(Fp, eos, params)
+        A = _cols(_rows(geom.A, s, b))
+        if eulerian:
+            w_ij = None
+        else:
+            wi = [_rows(c, s, b)[:, None] for c in wc]
+            wj = [c[jb] for c in wc]
+            w_ij = [0.5 * (a + c) for a, c in zip(wi, wj, strict=True)]
+        n_pair = None
+        if scheme.dissipation_normal == "pair":
+            dx = _cols(_rows(geom.dx, s, b))
+            r2 = dx[0] * dx[0]
+            for c in dx[1:]:
+                r2 = r2 + c * c
+            pos = r2 > 0
+            r = jnp.where(pos, jnp.sqrt(jnp.where(pos, r2, 1.0)), 0.0)
+            n_pair = [c / jnp.where(r > 0, r, 1.0) for c in dx]
+        GA = rusanov_components(Fm, Fp, w_ij, A, n_pair, eos, params,
+                                wave_speed=scheme.wave_speed, normal=scheme.dissipation_normal)
+        pm = _rows(geom.pair_mask, s, b)
+        terms = [jnp.where(pm, g, 0.0) for g in GA] + A
+        if not eulerian:
+            dv = (w_ij[0] - wi[0]) * A[0]
+            for c in range(1, d):
+                dv = dv + (w_ij[c] - wi[c]) * A[c]
+            terms.append(dv)
+            if interp:
+                ip = _rows(geom.interp, s, b)
+                terms += [ip * c for c in wj]
+        return (jnp.stack(mls.stencil_sums(terms), axis=-1),)
+
+    n_out = nv + d + (0 if eulerian else 1 + (d if interp else 0))
+    (sums,) = apx.row_blocks(block, n, apx.block_rows(n, k), [((n, n_out), U.dtype)])
+    dq = -sums[:, :nv]
     if scheme.self_flux:
-        dq = dq + ale_flux_dot(U, prim, w, jnp.sum(geom.A, axis=1), eos)
+        dq = dq + ale_flux_dot(U, prim, w, sums[:, nv:nv + d], eos)
     dq = dq + vol[:, None] * source(U, prim, params, eos)
-    dvol = jnp.sum(jnp.sum((w_ij - w[:, None, :]) * geom.A, axis=-1), axis=1)
-    if scheme.frame == "eulerian":
-        dxdt = jnp.zeros_like(x)
-    elif scheme.position_update == "w_i":
-        dxdt = w
+    if eulerian:
+        dvol, dxdt = jnp.zeros_like(vol), jnp.zeros_like(x)
     else:
-        dxdt = jnp.einsum("nk,nkd->nd", geom.interp, w[jsafe])
+        dvol = sums[:, nv + d]
+        dxdt = sums[:, nv + d + 1:] if interp else w
     fluid = kind == Kind.FLUID
     return (jnp.where(fluid[:, None], dxdt, 0.0), jnp.where(fluid, dvol, 0.0),
             jnp.where(fluid[:, None], dq, 0.0))

@@ -111,6 +111,43 @@ def pair_offsets(x, idx, mask, box_length=None, periodic=None):
     return jnp.where(mask[..., None], dx, 0.0)
 
 
+#: Target number of stencil slots (rows x K) per block of the batched passes: the per-block
+#: temporaries (a few dozen [rows, K] planes) then stay in the CPU caches.
+BLOCK_SLOTS = 40960
+
+
+def block_rows(n: int, k: int) -> int:
+    """Rows per block for arrays of ``n`` rows and ``k`` slots (see :data:`BLOCK_SLOTS`)."""
+    return max(1, min(n, BLOCK_SLOTS // max(k, 1)))
+
+
+def row_blocks(fn, n: int, block: int, outputs):
+    """Run ``fn(start, size) -> tuple of [size, ...] arrays`` over row blocks of ``n`` rows.
+
+    ``outputs`` lists the ``(shape, dtype)`` of the assembled ``[n, ...]`` results.  The blocks
+    are visited by a ``fori_loop`` with a static trip count (reverse-mode differentiable); the
+    last block is clamped to end at row ``n`` and so recomputes, identically, a few rows of its
+    predecessor.  With ``block >= n`` this is a single call.
+    """
+    if block >= n:
+        return tuple(fn(0, n))
+    nb = -(-n // block)
+
+    def body(b, outs):
+        start = jnp.minimum(b * block, n - block)
+        res = fn(start, block)
+        return tuple(jax.lax.dynamic_update_slice_in_dim(o, r, start, 0)
+                     for o, r in zip(outs, res, strict=True))
+
+    init = tuple(jnp.zeros(shape, dtype) for shape, dtype in outputs)
+    return jax.lax.fori_loop(0, nb, body, init)
+
+
+def rows(a, start, size):
+    """``a[start:start + size]`` along axis 0 with a traced start."""
+    return jax.lax.dynamic_slice_in_dim(a, start, size, 0)
+
+
 @functools.partial(jax.jit, static_argnames=("spec",))
 def build(x, h, vol, idx, mask, spec: ApproxSpec, box_length=None, periodic=None) -> ShapeOperators:
     """Shape-function operators for all particles (jit-able; ``spec`` is static).
@@ -120,10 +157,45 @@ def build(x, h, vol, idx, mask, spec: ApproxSpec, box_length=None, periodic=None
     box lengths and periodic flags (arrays of length d).
     """
     dx = pair_offsets(x, idx, mask, box_length, periodic)
+    return build_from_offsets(dx, h, vol, idx, mask, spec)
+
+
+def build_from_offsets(dx, h, vol, idx, mask, spec: ApproxSpec, *,
+                       coeffs_only: bool = False) -> ShapeOperators:
+    """:func:`build` with the offsets ``dx = pair_offsets(...)`` already computed (not jitted).
+
+    ``coeffs_only`` (MLS with coefficients): skip assembling values and gradients (returned as
+    ``None``) when only the fit coefficients are needed.
+    """
     kern = get_kernel(spec.kernel)
-    n = x.shape[0]
+    n, k, d = dx.shape
     if spec.is_mls:
-        f = functools.partial(mls.particle_operators, kernel=kern, degree=spec.mls_degree,
+        q = spec.mls_degree
+        if basis.basis_size(q, d) <= mls.UNROLL_MAX:
+            f = functools.partial(mls.operators_block, kernel=kern, degree=q, rcond=spec.rcond,
+                                  derivative=spec.derivative, with_coeffs=spec.with_coeffs)
+            m = basis.basis_size(q, d)
+            if coeffs_only and spec.with_coeffs:
+                f = functools.partial(f, derivative="fixed_centre")
+
+                def blk(s, b):
+                    _, _, coeffs, deg = f(rows(dx, s, b), rows(mask, s, b), rows(h, s, b))
+                    return deg, coeffs
+
+                deg, coeffs = row_blocks(blk, n, block_rows(n, k),
+                                         [((n,), jnp.int32), ((n, m, k), dx.dtype)])
+                return ShapeOperators(None, None, coeffs, h, deg)
+            outputs = [((n, k), dx.dtype), ((n, k, d), dx.dtype), ((n,), jnp.int32)]
+            if spec.with_coeffs:
+                outputs.append(((n, m, k), dx.dtype))
+
+            def blk(s, b):
+                values, grads, coeffs, deg = f(rows(dx, s, b), rows(mask, s, b), rows(h, s, b))
+                return (values, grads, deg) + ((coeffs,) if spec.with_coeffs else ())
+
+            out = row_blocks(blk, n, block_rows(n, k), outputs)
+            return ShapeOperators(out[0], out[1], out[3] if spec.with_coeffs else None, h, out[2])
+        f = functools.partial(mls.particle_operators, kernel=kern, degree=q,
                               rcond=spec.rcond, derivative=spec.derivative,
                               with_coeffs=spec.with_coeffs)
         values, grads, coeffs, deg = jax.vmap(f)(dx, mask, h)
@@ -141,7 +213,7 @@ def build(x, h, vol, idx, mask, spec: ApproxSpec, box_length=None, periodic=None
     # corrected: Shepard values, renormalised gradients with the partition of nullity
     values = w / jnp.sum(w, axis=1, keepdims=True)
     E = jnp.einsum("nka,nkb->nab", kgrad, dx)  # sum_j V_j dW_ij/dx^a (x_j - x_i)^b
-    d = x.shape[1]
+    d = dx.shape[2]
     det = jnp.linalg.det(E)
     scale = jnp.prod(jnp.abs(jnp.diagonal(E, axis1=1, axis2=2)), axis=1)
     good = jax.lax.stop_gradient(jnp.abs(det) > 1e-8 * jnp.maximum(scale, 1e-300))

@@ -8,7 +8,9 @@ dx_k = x_k - x_e, the MLS shape functions are (thesis eq. 3.8-3.10, CF04 eq. 5-1
 with the shifted, h-scaled basis p((y - x)/h_e) and the *classical* weight matrix
 W = diag(W(|x_k - x|, h_e)) (SPEC §13.1 items 1-3: cubic-spline weight, gather smoothing length).
 
-Everything here works on one particle's stencil and is ``vmap``-ed by the caller.
+The per-particle functions work on one particle's stencil (``vmap``-able); ``build`` uses the
+batched :func:`operators_block` (blocks of particles as structure-of-arrays planes) for basis
+sizes up to UNROLL_MAX and the vmapped per-particle path above that (3D cubic).
 
 Numerics
 --------
@@ -22,8 +24,18 @@ Numerics
   >= ``rcond``; monomials above it are dropped (identity rows), down to Shepard (degree 0),
   which is always well posed because the particle itself is in its stencil.  The choice carries
   no gradient and no NaN can appear in either branch.
-* ``derivative="full"`` differentiates N(x) including M^{-1}(x) and W(x) by forward-mode
-  autodiff with respect to the evaluation point (SPEC §4.4 item 1);
+* ``derivative="full"`` differentiates N(x) including M^{-1}(x) and W(x) with respect to the
+  evaluation point (SPEC §4.4 item 1).  :func:`particle_operators` does it by forward-mode
+  autodiff of :func:`shape_values_full`; the batched :func:`operators_block` (used by
+  ``build``) uses the closed form with the same factor,
+
+      z = M^{-1} e_0,  N_k = w_k p_k.z,
+      grad N_k = (grad w_k) p_k.z + w_k (grad p_k).z + w_k p_k.(grad z),
+      grad_a z = -M^{-1} (grad_a M) z,
+      (grad_a M) z = sum_k [p_k (dw_k t_k + w_k u_k) + dp_k w_k t_k]
+
+  with t_k = p_k.z and u_k = (grad_a p_k).z (one solve for z and d more; restricted to the
+  active monomials exactly as the autodiff of the masked factor is);
   ``derivative="fixed_centre"`` freezes C_e = M_e^{-1} P_e W_e and differentiates only the basis
   (the cheaper "diffuse" derivative, SPEC §4.4 item 2).
 """
@@ -36,7 +48,6 @@ import numpy as np
 
 from ..kernels import Kernel
 from . import basis
-
 
 UNROLL_MAX = 10  # basis sizes up to this are unrolled; larger ones (3D cubic, m = 20) use loops
 
@@ -216,3 +227,210 @@ def hessians_fixed_centre(C, h, degree: int, dim: int):
 
 def monomial_count(degree: int, dim: int) -> int:
     return int(np.asarray(basis.basis_size(degree, dim)))
+
+
+# ----------------------------------------------------------------------------------------------
+# Batched ("structure of arrays") operators: used by ``build`` for basis sizes <= UNROLL_MAX.
+#
+# A block of B particles is processed at once: per-particle scalars are [B, 1] arrays, per-slot
+# quantities [B, K] "planes", and the small matrices nested Python lists of those.  Every sum
+# over the stencil is one variadic ``lax.reduce`` (all moments in one pass over the planes),
+# which XLA:CPU compiles to a single fused loop; batched tiny matmuls (``einsum`` under
+# ``vmap``) and the per-particle ``jacfwd`` are avoided.  Results equal
+# :func:`particle_operators` to round-off (tests/test_rhs_equivalence_perf.py).
+# ----------------------------------------------------------------------------------------------
+
+
+def stencil_sums(terms):
+    """``[t.sum(-1) for t in terms]`` as one variadic reduction (a single fused loop on CPU).
+
+    Differentiable: the tangents are summed with ``jnp.sum`` (the generic variadic ``reduce``
+    has no autodiff rules).
+    """
+    return list(_stencil_sums(tuple(terms)))
+
+
+@jax.custom_jvp
+def _stencil_sums(terms):
+    axis = terms[0].ndim - 1
+    zero = tuple(jnp.zeros((), t.dtype) for t in terms)
+    return jax.lax.reduce(terms, zero, lambda a, b: tuple(x + y for x, y in zip(a, b, strict=True)),
+                          (axis,))
+
+
+@_stencil_sums.defjvp
+def _stencil_sums_jvp(primals, tangents):
+    (terms,), (dterms,) = primals, tangents
+    return _stencil_sums(terms), tuple(jnp.sum(t, axis=-1) for t in dterms)
+
+
+def _power_table(xi, maxp):
+    cols = []
+    for x in xi:
+        pw = [None, x]
+        for _ in range(2, maxp + 1):
+            pw.append(pw[-1] * x)
+        cols.append(pw)
+    return cols
+
+
+def _power_product(cols, row):
+    v = None
+    for a, p in enumerate(row):
+        if p:
+            v = cols[a][p] if v is None else v * cols[a][p]
+    return v
+
+
+def monomial_planes(xi, degree: int):
+    """Monomials p_a(xi) of the components ``xi`` (a list of d equally shaped arrays), in the
+    order of :func:`basis.exponents`; ``None`` stands for the constant monomial 1."""
+    e = basis.exponents(degree, len(xi))
+    cols = _power_table(xi, int(e.max()) if e.size else 0)
+    return [_power_product(cols, row) for row in e]
+
+
+def monomial_gradient_planes(xi, degree: int):
+    """``[alpha][a]`` = d p_a / d xi_alpha: an array, a float constant, or ``None`` for zero."""
+    e = basis.exponents(degree, len(xi))
+    cols = _power_table(xi, int(e.max()) if e.size else 0)
+    out = []
+    for al in range(len(xi)):
+        row_out = []
+        for row in e:
+            if row[al] == 0:
+                row_out.append(None)
+                continue
+            lower = row.copy()
+            lower[al] -= 1
+            v = _power_product(cols, lower)
+            c = float(row[al])
+            row_out.append(c if v is None else (v if c == 1.0 else v * c))
+        out.append(row_out)
+    return out
+
+
+def cholesky_lists(M, rcond):
+    """Unrolled Cholesky of a nested-list matrix ``M[i][j]`` (arrays, lower triangle read).
+
+    Returns ``(L, ok)``: the factor with the guard of ``cholesky_pivots(M, 0)`` and the pivot
+    flags of ``cholesky_pivots(M, rcond)``.  The flags agree up to the first failing pivot (the
+    factors coincide until then), and that pivot alone decides the active degree.
+    """
+    m = len(M)
+    L = [[None] * m for _ in range(m)]
+    ok = []
+    for j in range(m):
+        s = M[j][j]
+        for k in range(j):
+            s = s - L[j][k] * L[j][k]
+        ok.append(jax.lax.stop_gradient(s > rcond * jnp.maximum(M[j][j], 1e-300)))
+        ljj = jnp.sqrt(jnp.where(s > 0.0, s, 1.0))
+        L[j][j] = ljj
+        for i in range(j + 1, m):
+            t = M[i][j]
+            for k in range(j):
+                t = t - L[i][k] * L[j][k]
+            L[i][j] = t / ljj
+    return L, ok
+
+
+def chol_solve_lists(L, B):
+    """Solve (L L^T) X = B for a nested-list factor and a list ``B`` of m arrays (``None`` = 0)."""
+    m = len(L)
+    y = []
+    for i in range(m):
+        t = B[i]
+        for k in range(i):
+            if y[k] is not None:
+                t = -(L[i][k] * y[k]) if t is None else t - L[i][k] * y[k]
+        y.append(None if t is None else t / L[i][i])
+    x = [None] * m
+    for i in reversed(range(m)):
+        t = y[i]
+        for k in range(i + 1, m):
+            if x[k] is not None:
+                t = -(L[k][i] * x[k]) if t is None else t - L[k][i] * x[k]
+        x[i] = None if t is None else t / L[i][i]
+    return x
+
+
+def operators_block(dx, mask, h, *, kernel: Kernel, degree: int, rcond: float, derivative: str,
+                    with_coeffs: bool):
+    """:func:`particle_operators` for a block of particles at once.
+
+    dx[B, K, d] offsets x_k - x_e, mask[B, K], h[B].  Returns values[B, K], gradients[B, K, d],
+    coefficients[B, m, K] (or None) and the active degree[B].
+    """
+    d = dx.shape[-1]
+    mdeg = basis.monomial_degrees(degree, d)
+    m = len(mdeg)
+    hb = h[:, None]
+    y = [jnp.where(mask, dx[..., a], 0.0) for a in range(d)]
+    r2 = y[0] * y[0]
+    for a in range(1, d):
+        r2 = r2 + y[a] * y[a]
+    pos = r2 > 0
+    r = jnp.where(pos, jnp.sqrt(jnp.where(pos, r2, 1.0)), 0.0)      # kernels.safe_norm
+    w = kernel.w(r, hb, d) * mask
+    xi = [t / hb for t in y]
+    P = monomial_planes(xi, degree)
+    wP = [w if p is None else w * p for p in P]
+    tri = [(a, b) for a in range(m) for b in range(a + 1)]
+    sums = stencil_sums([wP[a] if P[b] is None else wP[a] * P[b] for a, b in tri])
+    M = [[None] * m for _ in range(m)]
+    for (a, b), s in zip(tri, sums, strict=True):
+        M[a][b] = M[b][a] = s[:, None]
+    L, ok = cholesky_lists(M, rcond)
+    run, levels = None, []
+    for lev in range(degree + 1):               # prefix by degree level (active_monomials)
+        for j in np.flatnonzero(mdeg == lev):
+            run = ok[j] if run is None else run & ok[j]
+        levels.append(run.astype(jnp.int32))
+    active_degree = jax.lax.stop_gradient(sum(levels) - 1)          # [B, 1]
+    active = [active_degree >= int(mdeg[a]) for a in range(m)]
+    Lm = [[jnp.where(active[i] & active[j], L[i][j], 1.0 if i == j else 0.0) if j <= i else None
+           for j in range(m)] for i in range(m)]                    # _masked_factor
+    C = chol_solve_lists(Lm, [jnp.where(active[a], wP[a], 0.0) for a in range(m)])
+    values = jnp.where(mask, C[0], 0.0)
+    if derivative == "full":
+        z = chol_solve_lists(Lm, [jnp.ones_like(hb)] + [None] * (m - 1))
+        z = [jnp.zeros_like(hb) if v is None else v for v in z]
+        t = z[0]
+        for a in range(1, m):
+            t = t + P[a] * z[a]
+        coef = kernel.dw_dr(r, hb, d) / jnp.where(r > 0, r, 1.0)   # kernel.grad / r
+        dP_xi = monomial_gradient_planes(xi, degree)
+        wt = w * t
+        q, terms = [], []
+        for al in range(d):
+            # derivatives with respect to the evaluation point: y = dx - s, xi = y / h
+            dw = -(coef * y[al]) * mask
+            dP = [None if g is None else -(g / hb) for g in dP_xi[al]]
+            u = None
+            for a in range(m):
+                if dP[a] is not None:
+                    u = dP[a] * z[a] if u is None else u + dP[a] * z[a]
+            qa = dw * t if u is None else dw * t + w * u
+            q.append(qa)
+            for a in range(m):
+                term = qa if P[a] is None else P[a] * qa
+                terms.append(term if dP[a] is None else term + dP[a] * wt)
+        dMz = stencil_sums(terms)
+        grads = []
+        for al in range(d):
+            dz = chol_solve_lists(Lm, [jnp.where(active[a], dMz[al * m + a][:, None], 0.0)
+                                       for a in range(m)])
+            pdz = dz[0]
+            for a in range(1, m):
+                pdz = pdz + P[a] * dz[a]
+            grads.append(jnp.where(mask, q[al] - w * pdz, 0.0))
+    else:
+        g0 = basis.gradient_at_origin(degree, d)
+        grads = []
+        for al in range(d):
+            rows = np.flatnonzero(g0[:, al])
+            g = C[int(rows[0])] / hb if rows.size else jnp.zeros_like(w)
+            grads.append(jnp.where(mask, g, 0.0))
+    coeffs = jnp.stack([jnp.broadcast_to(c, w.shape) for c in C], axis=1) if with_coeffs else None
+    return values, jnp.stack(grads, axis=-1), coeffs, active_degree[:, 0]

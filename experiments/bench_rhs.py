@@ -1,0 +1,193 @@
+"""Throughput of the semi-discrete right-hand side (:mod:`mlsph_jax.rhs`).
+
+Layout: jittered Cartesian lattice (jitter +-0.1 dx) in the periodic unit square, uniform
+volumes dx^2, ideal gas (gamma = 1.4) with a smooth non-uniform state (density, velocity and
+pressure waves).  Schemes (Eulerian frame by default):
+
+* ``mlsph_ale`` degree 2 and 3 (full MLS derivative, reconstruction degree = degree, beta 1.5);
+* ``sph_ale`` (kernel areas, beta 2, Taylor reconstruction of degree 2).
+
+For every scheme and size the neighbour list is built once (not timed); then
+
+* ``rhs``:       ``rhs(particles, params, geom, scheme)`` with a precomputed Geometry (what an
+  Eulerian run evaluates per Runge-Kutta stage);
+* ``geom+rhs``:  ``geometry(...)`` followed by ``rhs(...)`` (what a moving-particle run evaluates
+  per stage, neighbour search excluded);
+
+each compiled ahead of time (``jax.jit(f).lower(...).compile()``, compile time reported
+separately) and timed as the median of ``--repeat`` runs.  Throughput is given as
+right-hand-side evaluations per second and particle updates per second (N / time).
+Writes ``experiments/output/bench_rhs.json``.  Not a test.
+
+Usage::
+
+    python experiments/bench_rhs.py --sizes 10000 40000 160000 --repeat 5
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import platform
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import mlsph_jax
+from mlsph_jax import neighbors
+from mlsph_jax.eos import get_eos, to_conservative
+from mlsph_jax.rhs import geometry, rhs
+from mlsph_jax.scheme import Scheme
+from mlsph_jax.state import Domain, Params, make_particles
+
+SCHEMES = {
+    "mlsph_ale-2": dict(method="mlsph_ale", degree=2, reconstruction_degree=2, beta=1.5),
+    "mlsph_ale-3": dict(method="mlsph_ale", degree=3, reconstruction_degree=3, beta=1.5),
+    "sph_ale-2": dict(method="sph_ale", degree=2, reconstruction_degree=2, beta=2.0),
+}
+
+
+def layout(n_target: int, rng: np.random.Generator, jitter: float = 0.1):
+    """Jittered Cartesian lattice of about ``n_target`` particles in the periodic unit square."""
+    m = max(4, round(n_target**0.5))
+    dx = 1.0 / m
+    ax = (np.arange(m) + 0.5) * dx
+    x = np.stack(np.meshgrid(ax, ax, indexing="ij"), axis=-1).reshape(-1, 2)
+    x = np.mod(x + rng.uniform(-jitter, jitter, x.shape) * dx, 1.0)
+    return x, dx
+
+
+def smooth_state(x, params):
+    """Smooth non-uniform ideal-gas state: conservative U[N, 4]."""
+    k = 2.0 * np.pi
+    rho = 1.0 + 0.2 * np.sin(k * x[:, 0]) * np.cos(k * x[:, 1])
+    vel = np.stack([0.3 * np.sin(k * x[:, 1]), 0.2 * np.cos(k * x[:, 0])], axis=-1)
+    p = 1.0 + 0.1 * np.cos(k * (x[:, 0] + x[:, 1]))
+    return np.asarray(
+        to_conservative(
+            jnp.asarray(rho), jnp.asarray(vel), jnp.asarray(p), get_eos("ideal_gas"), params
+        )
+    )
+
+
+def _time(fn, args, repeat: int):
+    jax.block_until_ready(fn(*args))  # warm-up
+    ts = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        ts.append(time.perf_counter() - t0)
+    return float(np.median(ts)), float(np.min(ts))
+
+
+def run(name: str, n_target: int, repeat: int, frame: str, seed: int) -> dict:
+    scheme = Scheme(**SCHEMES[name], frame=frame)
+    rng = np.random.default_rng(seed)
+    x, dx = layout(n_target, rng)
+    n = x.shape[0]
+    params = Params({"eos.gamma": 1.4})
+    vol = np.full(n, dx * dx)
+    particles = make_particles(x, vol, smooth_state(x, params))
+    domain = Domain((0.0, 0.0), (1.0, 1.0), (True, True))
+    h = scheme.beta * vol**0.5
+    _, nl = neighbors.allocate(x, h, domain, support=scheme.support)
+    assert not bool(nl.overflow)
+
+    def geom_fn(p, nl):
+        return geometry(p.x, p.vol, nl, scheme, domain)
+
+    def rhs_fn(p, prm, g):
+        return rhs(p, prm, g, scheme)
+
+    def full_fn(p, prm, nl):
+        return rhs(p, prm, geometry(p.x, p.vol, nl, scheme, domain), scheme)
+
+    out = dict(
+        scheme=name,
+        method=scheme.method,
+        degree=scheme.degree,
+        reconstruction_degree=scheme.reconstruction_degree,
+        beta=scheme.beta,
+        frame=frame,
+        n=n,
+        capacity=int(nl.idx.shape[1]),
+        mean_neighbors=float(np.mean(nl.count)),
+    )
+    t0 = time.perf_counter()
+    geom_c = jax.jit(geom_fn).lower(particles, nl).compile()
+    out["compile_geometry_s"] = time.perf_counter() - t0
+    geom = jax.block_until_ready(geom_c(particles, nl))
+    t0 = time.perf_counter()
+    rhs_c = jax.jit(rhs_fn).lower(particles, params, geom).compile()
+    out["compile_rhs_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    full_c = jax.jit(full_fn).lower(particles, params, nl).compile()
+    out["compile_geom_rhs_s"] = time.perf_counter() - t0
+
+    out["geometry_s"], out["geometry_min_s"] = _time(geom_c, (particles, nl), repeat)
+    out["rhs_s"], out["rhs_min_s"] = _time(rhs_c, (particles, params, geom), repeat)
+    out["geom_rhs_s"], out["geom_rhs_min_s"] = _time(full_c, (particles, params, nl), repeat)
+    for k in ("geometry", "rhs", "geom_rhs"):
+        out[f"{k}_evals_per_s"] = 1.0 / out[f"{k}_s"]
+        out[f"{k}_particles_per_s"] = n / out[f"{k}_s"]
+    dq = np.asarray(rhs_c(particles, params, geom)[2])
+    out["checksum_dq_abs"] = float(np.abs(dq).sum())
+    return out
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    p.add_argument("--sizes", type=int, nargs="+", default=[10_000, 40_000, 160_000])
+    p.add_argument("--schemes", nargs="+", default=list(SCHEMES), choices=list(SCHEMES))
+    p.add_argument("--repeat", type=int, default=5)
+    p.add_argument("--frame", default="eulerian", choices=["eulerian", "lagrangian"])
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--out",
+        type=pathlib.Path,
+        default=pathlib.Path(__file__).parent / "output" / "bench_rhs.json",
+    )
+    args = p.parse_args(argv)
+
+    hdr = (
+        f"{'scheme':<12} {'N':>7} {'K':>3} {'comp g/r/gr s':>15} {'rhs s':>8} {'rhs p/s':>9} "
+        f"{'geom s':>8} {'g+r s':>8} {'g+r p/s':>9} {'g+r eval/s':>10}"
+    )
+    print(hdr)
+    print("-" * len(hdr))
+    rows = []
+    for name in args.schemes:
+        for n in args.sizes:
+            r = run(name, n, args.repeat, args.frame, args.seed)
+            rows.append(r)
+            comp = "/".join(
+                f"{r[k]:.1f}" for k in ("compile_geometry_s", "compile_rhs_s", "compile_geom_rhs_s")
+            )
+            print(
+                f"{name:<12} {r['n']:>7} {r['capacity']:>3} {comp:>15} {r['rhs_s']:>8.4f} "
+                f"{r['rhs_particles_per_s']:>9.3e} {r['geometry_s']:>8.4f} "
+                f"{r['geom_rhs_s']:>8.4f} "
+                f"{r['geom_rhs_particles_per_s']:>9.3e} {r['geom_rhs_evals_per_s']:>10.2f}",
+                flush=True,
+            )
+    meta = dict(
+        jax=jax.__version__,
+        mlsph_jax=mlsph_jax.__version__,
+        backend=jax.default_backend(),
+        devices=[str(d) for d in jax.devices()],
+        platform=platform.platform(),
+        processor=platform.processor(),
+        repeat=args.repeat,
+        frame=args.frame,
+        dtype=str(jnp.zeros(()).dtype),
+    )
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(dict(meta=meta, results=rows), indent=2))
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
