@@ -16,7 +16,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import neighbors as nb
-from .approximation import APPROXIMATIONS, DERIVATIVES, ApproxSpec, ShapeOperators, build, smoothing_length
+from .approximation import (
+    APPROXIMATIONS,
+    DERIVATIVES,
+    ApproxSpec,
+    ShapeOperators,
+    build,
+    smoothing_length,
+)
 from .approximation.basis import basis_size
 from .errors import InputError
 from .kernels import get_kernel
@@ -91,8 +98,8 @@ def shape_functions(points, approximation: str = "mls", degree: int = 2, kernel:
     if isinstance(degree, bool) or not isinstance(degree, int | np.integer) or not 0 <= degree <= 3:
         raise InputError(f"invalid degree={degree!r}; allowed: an integer in 0..3")
     degree = int(degree)
-    if not (np.isfinite(beta) and beta > 0):
-        raise InputError(f"invalid beta={beta!r}; allowed: a finite number > 0")
+    beta = _positive_float(beta, "beta")
+    rcond = _positive_float(rcond, "rcond")
     m = basis_size(degree if approximation == "mls" else (1 if approximation == "corrected" else 0), d)
     if n < m:
         raise InputError(f"invalid points: N={n} particles is smaller than the stencil size m={m} "
@@ -101,7 +108,11 @@ def shape_functions(points, approximation: str = "mls", degree: int = 2, kernel:
     if volumes is None:
         vol = np.full(n, float(np.prod(domain.length)) / n)
     else:
-        vol = np.asarray(volumes, dtype=np.float64)
+        try:
+            vol = np.asarray(volumes, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InputError(f"invalid volumes of type {type(volumes).__name__}; "
+                             f"allowed: {n} finite numbers > 0") from None
         if vol.shape != (n,):
             raise InputError(f"invalid volumes with shape {vol.shape}; allowed: shape ({n},)")
         bad = np.flatnonzero(~np.isfinite(vol) | (vol <= 0))
@@ -115,6 +126,19 @@ def shape_functions(points, approximation: str = "mls", degree: int = 2, kernel:
     per = jnp.asarray(domain.periodic) if domain.any_periodic else None
     ops = build(jnp.asarray(x), jnp.asarray(h), jnp.asarray(vol), nl.idx, nl.mask, spec, L, per)
     return ShapeFunctions(nl.idx, nl.mask, ops.values, ops.gradients, ops.h, ops.degree, ops, domain, spec)
+
+
+def _positive_float(value, name: str) -> float:
+    """``value`` as a finite float > 0, or an InputError naming ``name``."""
+    if isinstance(value, bool | str) or value is None:
+        raise InputError(f"invalid {name}={value!r}; allowed: a finite number > 0")
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"invalid {name}={value!r}; allowed: a finite number > 0") from None
+    if not (np.isfinite(v) and v > 0):
+        raise InputError(f"invalid {name}={value!r}; allowed: a finite number > 0")
+    return v
 
 
 def _points(points) -> np.ndarray:
@@ -153,7 +177,11 @@ def _domain(x: np.ndarray, box, periodic) -> Domain:
         pad = span / max(1.0, x.shape[0] ** (1.0 / d))
         lower, upper = lo - 0.5 * pad, hi + 0.5 * pad
     else:
-        b = np.asarray(box, dtype=np.float64)
+        try:
+            b = np.asarray(box, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InputError(f"invalid box={box!r}; allowed: {d} box lengths or a (lower, upper) pair of "
+                             f"{d}-sequences of numbers") from None
         if b.shape == (d,):
             lower, upper = np.zeros(d), b
         elif b.shape == (2, d):
