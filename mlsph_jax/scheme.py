@@ -20,7 +20,8 @@ from .registry import Registry
 
 METHODS = Registry("scheme.method")
 METHODS.register("mlsph_ale")("MLSPH-ALE: MLS area vectors (thesis eq. 4.36) and direct MLS reconstruction (eq. 4.39)")
-METHODS.register("sph_ale")("SPH-ALE: kernel area vectors 2 V_i V_j grad W_ij (eq. 3.5) and Taylor reconstruction (eq. 3.11)")
+METHODS.register("sph_ale")(
+    "SPH-ALE: kernel area vectors 2 V_i V_j grad W_ij (eq. 3.5) and Taylor reconstruction (eq. 3.11)")
 FRAMES = Registry("scheme.frame")
 FRAMES.register("eulerian")("w = 0")
 FRAMES.register("lagrangian")("w = u")
