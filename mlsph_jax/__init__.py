@@ -18,8 +18,8 @@ if _os.environ.get("MLSPH_JAX_FLOAT32", "0") != "1":
 __version__ = "0.1.0"
 
 from .errors import ConfigError, InputError, MLSPHError, NeighborOverflowError, SimulationError  # noqa: E402
-from .state import Domain, Kind, Params, Particles, make_particles  # noqa: E402
 from .point_cloud import ShapeFunctions, shape_functions  # noqa: E402
+from .state import Domain, Kind, Params, Particles, make_particles  # noqa: E402
 
 __all__ = [
     "__version__",

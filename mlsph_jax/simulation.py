@@ -17,7 +17,6 @@ import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
-
 import jax.numpy as jnp
 import numpy as np
 
@@ -27,7 +26,7 @@ from .eos import get_eos, to_primitive
 from .errors import NeighborOverflowError, SimulationError
 from .integrate import Carry, Status, StepControl, initial_carry, make_chunk, static_geometry
 from .scheme import Scheme
-from .state import Domain, Kind, Params, Particles
+from .state import Domain, Params, Particles
 
 
 @dataclasses.dataclass

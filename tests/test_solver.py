@@ -13,11 +13,11 @@ import pytest
 import mlsph_jax
 from mlsph_jax import Domain, Kind, Params, make_particles
 from mlsph_jax import neighbors as nb
+from mlsph_jax.cli import DEFAULT_CONFIG
 from mlsph_jax.eos import get_eos, to_conservative
-from mlsph_jax.integrate import initial_carry, make_chunk, static_geometry, StepControl
+from mlsph_jax.integrate import StepControl, initial_carry, make_chunk, static_geometry
 from mlsph_jax.rhs import evaluate
 from mlsph_jax.scheme import Scheme
-from mlsph_jax.cli import DEFAULT_CONFIG
 from mlsph_jax.simulation import Problem, Simulation
 
 GAS = Params({"eos.gamma": 1.4})
