@@ -24,6 +24,8 @@ import jax.numpy as jnp
 
 from . import neighbors as nb
 from .eos import get_eos, to_primitive
+from .kernels import safe_norm
+from .mood import mood_substep
 from .rhs import Geometry, frame_velocity, geometry, rhs
 from .scheme import Scheme
 from .state import Domain, Kind, Params, Particles
@@ -68,6 +70,10 @@ class Carry:
     status: jax.Array
     bad_particle: jax.Array
     dt_last: jax.Array
+    mood: jax.Array
+
+#: Entries of ``Carry.mood`` (MOOD statistics accumulated over committed steps).
+MOOD_STATS = ("flagged_fraction_max", "flagged_fraction_sum", "rhs_evaluations", "unresolved_stages")
 
 
 def cfl_dt(particles: Particles, params: Params, scheme: Scheme, cfl: float):
@@ -80,7 +86,7 @@ def _local_dt(particles: Particles, params: Params, scheme: Scheme):
     U = particles.U
     prim = to_primitive(U, eos, params)
     w = frame_velocity(U, particles.kind, scheme, params)
-    speed = jnp.linalg.norm(prim.vel - w, axis=-1) + prim.c
+    speed = safe_norm(prim.vel - w) + prim.c   # |u - w| = 0 in the Lagrangian frame: keep its gradient finite
     dxi = particles.vol ** (1.0 / particles.dim)
     return jnp.where(particles.kind == Kind.FLUID, dxi / speed, jnp.inf)
 
@@ -101,15 +107,20 @@ def health(particles: Particles):
     return status.astype(jnp.int32), bad.astype(jnp.int32)
 
 
-def _axpy(a, y, b, z, dt_b, dz):
-    """a*y + b*(z + dt_b*dz) on the (x, vol, q) parts of fluid particles; other particles keep
-    their state bit for bit (frozen/boundary particles are never updated)."""
+def _euler(z, dt, dz):
+    """Forward-Euler sub-step z + dt*dz on the (x, vol, q) parts of fluid particles; other
+    particles keep their state bit for bit (frozen/boundary particles are never updated)."""
     dx, dvol, dq = dz
-    fluid = y.kind == Kind.FLUID
-    f1, f2 = fluid[:, None], fluid
-    return y.replace(x=jnp.where(f1, a * y.x + b * (z.x + dt_b * dx), y.x),
-                     vol=jnp.where(f2, a * y.vol + b * (z.vol + dt_b * dvol), y.vol),
-                     q=jnp.where(f1, a * y.q + b * (z.q + dt_b * dq), y.q))
+    f1 = (z.kind == Kind.FLUID)[:, None]
+    return z.replace(x=jnp.where(f1, z.x + dt * dx, z.x), vol=jnp.where(f1[:, 0], z.vol + dt * dvol, z.vol),
+                     q=jnp.where(f1, z.q + dt * dq, z.q))
+
+
+def _combine(a, y, b, e):
+    """Shu-Osher combination a*y + b*e of the fluid particles (others keep y bit for bit)."""
+    f1 = (y.kind == Kind.FLUID)[:, None]
+    return y.replace(x=jnp.where(f1, a * y.x + b * e.x, y.x), vol=jnp.where(f1[:, 0], a * y.vol + b * e.vol, y.vol),
+                     q=jnp.where(f1, a * y.q + b * e.q, y.q))
 
 
 def make_stage_geometry(scheme: Scheme, domain: Domain, nspec):
@@ -127,32 +138,54 @@ SSP_RK3_A = (0.0, 0.75, 1.0 / 3.0)  # Shu-Osher form: z_{k+1} = a_k y + b_k (z_k
 SSP_RK3_B = (1.0, 0.25, 2.0 / 3.0)
 
 
-def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, stage_hook=None):
+def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn):
     """One SSP-RK3 step.  ``geom_fn(p)`` returns the Geometry of a stage (constant for Eulerian
-    runs).  ``stage_hook(y, z, candidate, geom, a, b, dt)`` may replace a stage result (MOOD).
-    Returns the new state and whether any stage's neighbour list overflowed.
+    runs).  Each stage is a forward-Euler sub-step E = z + dt L(z) combined as a y^n + b E; with
+    ``scheme.limiter == "mood"`` the sub-step is MOOD-limited (:mod:`mlsph_jax.mood`).
+
+    Returns ``(new state, overflow, stats)``: whether any stage's neighbour list overflowed and
+    ``stats = (ppd, rhs evaluations, unresolved stages)`` where ``ppd`` is the smallest
+    per-particle degree used in the three stages (the state's ``ppd`` field carries it out).
 
     The three stages run as a ``lax.scan`` over the Shu-Osher coefficients, so the right-hand
     side is traced (and compiled) once, not three times.
     """
+    mood_on = scheme.limiter == "mood"
 
     def stage(carry, ab):
-        z, overflow = carry
+        z, overflow, ppd_min, n_evals, unresolved = carry
         a, b = ab
         geom = geom_fn(z)
-        dz = rhs(z, params, geom, scheme)
-        cand = _axpy(a, p, b, z, dt, dz)
-        if stage_hook is not None:
-            cand = stage_hook(p, z, cand, geom, a, b, dt)
-        return (cand, overflow | geom.overflow), None
+
+        def euler(zz):
+            return _euler(zz, dt, rhs(zz, params, geom, scheme))
+
+        if mood_on:
+            e, ppd, n, unres = mood_substep(z, params, dt, geom, scheme, euler)
+            ppd_min = jnp.minimum(ppd_min, ppd)
+            n_evals, unresolved = n_evals + n, unresolved + unres.astype(jnp.int32)
+        else:
+            e = euler(z)
+            n_evals = n_evals + 1
+        cand = _combine(a, p, b, e)
+        return (cand, overflow | geom.overflow, ppd_min, n_evals, unresolved), None
 
     coeffs = (jnp.asarray(SSP_RK3_A), jnp.asarray(SSP_RK3_B))
-    (out, overflow), _ = jax.lax.scan(stage, (p, jnp.asarray(False)), coeffs)
-    return out, overflow
+    ppd_start = jnp.full_like(p.ppd, scheme.reconstruction_degree) if mood_on else p.ppd
+    init = (p, jnp.asarray(False), ppd_start, jnp.asarray(0, jnp.int32), jnp.asarray(0, jnp.int32))
+    (out, overflow, ppd_min, n_evals, unresolved), _ = jax.lax.scan(stage, init, coeffs)
+    return out.replace(ppd=ppd_min), overflow, (ppd_min, n_evals, unresolved)
 
 
-def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: int, nspec=None,
-               stage_hook=None):
+def _mood_stats(stats, p: Particles, scheme: Scheme):
+    """This step's contribution to ``Carry.mood`` (see :data:`MOOD_STATS`)."""
+    ppd, n_evals, unresolved = stats
+    fluid = p.kind == Kind.FLUID
+    demoted = jnp.sum(fluid & (ppd < scheme.reconstruction_degree)) / jnp.maximum(jnp.sum(fluid), 1)
+    return jnp.stack([demoted, demoted, n_evals.astype(demoted.dtype), unresolved.astype(demoted.dtype)])
+
+
+def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: int, nspec=None):
     """Build ``chunk(carry, params, static_geom, t_stop) -> carry`` running ``n_steps`` steps.
 
     For Eulerian schemes pass the precomputed Geometry as ``static_geom``; for moving particles
@@ -171,7 +204,7 @@ def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: in
                 remaining = t_stop - c.t
                 last = dt >= remaining
                 dt = jnp.minimum(dt, remaining)
-                newp, overflow = ssp_rk3_step(c.particles, params, dt, scheme, geom_fn, stage_hook)
+                newp, overflow, stats = ssp_rk3_step(c.particles, params, dt, scheme, geom_fn)
                 st, bad = health(newp)
                 st = jnp.where(overflow, Status.NEIGHBOR_OVERFLOW, st)
                 underflow = (dt < control.dt_min) & ~last
@@ -181,9 +214,11 @@ def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: in
                 ok = st == Status.OK
                 keep = lambda new, old: jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, old)
                 t_new = jnp.where(last, t_stop, c.t + dt)
+                inc = _mood_stats(stats, newp, scheme)
+                mood = jnp.where(ok, c.mood.at[0].set(jnp.maximum(c.mood[0], inc[0])).at[1:].add(inc[1:]), c.mood)
                 return Carry(keep(newp, c.particles), jnp.where(ok, t_new, c.t),
                              c.step + ok.astype(c.step.dtype), st, jnp.where(ok, c.bad_particle, bad),
-                             jnp.where(ok, dt, c.dt_last))
+                             jnp.where(ok, dt, c.dt_last), mood)
 
             return jax.lax.cond(active, advance, lambda c: c, c), None
 
@@ -195,7 +230,8 @@ def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: in
 
 def initial_carry(particles: Particles, t0: float = 0.0) -> Carry:
     return Carry(particles, jnp.asarray(t0, jnp.float64), jnp.asarray(0, jnp.int32),
-                 jnp.asarray(Status.OK, jnp.int32), jnp.asarray(-1, jnp.int32), jnp.asarray(0.0))
+                 jnp.asarray(Status.OK, jnp.int32), jnp.asarray(-1, jnp.int32), jnp.asarray(0.0),
+                 jnp.zeros(len(MOOD_STATS)))
 
 
 @functools.partial(jax.jit, static_argnames=("scheme", "domain"))

@@ -18,6 +18,8 @@ from .flux import FLUXES, WAVE_SPEEDS
 from .kernels import get_kernel
 from .registry import Registry
 
+NAD_VARIABLES = ("rho", "p", "vel", "e", "conservative")
+
 METHODS = Registry("scheme.method")
 METHODS.register("mlsph_ale")("MLSPH-ALE: MLS area vectors (thesis eq. 4.36) and direct MLS reconstruction (eq. 4.39)")
 METHODS.register("sph_ale")(
@@ -51,6 +53,8 @@ class Scheme:
     position_update:          ``mls`` (the method's own interpolant of w: MLS for mlsph_ale, the
                               Shepard kernel average T(3.7) for sph_ale) | ``shepard`` | ``w_i``
     limiter:                  ``none`` | ``mood``
+    mood_*:                   MOOD detectors (:mod:`mlsph_jax.mood`): NAD variables, delta_abs and
+                              delta_rel of eq. 3.13, PAD/NAD switches, iteration bound
     eos:                      EOS kind
     rcond:                    MLS degree-fallback threshold
     """
@@ -71,6 +75,12 @@ class Scheme:
     frame: str = "eulerian"
     position_update: str = "mls"
     limiter: str = "none"
+    mood_variables: tuple[str, ...] = ("rho", "p")
+    mood_delta_abs: float = 1e-4
+    mood_delta_rel: float = 1e-3
+    mood_pad: bool = True
+    mood_nad: bool = True
+    mood_max_iter: int = 8
     eos: str = "ideal_gas"
     rcond: float = 1e-6
 
@@ -97,6 +107,19 @@ class Scheme:
         if self.reconstruction_variables not in ("conservative", "primitive"):
             raise InputError(f"invalid scheme.reconstruction_variables={self.reconstruction_variables!r}; "
                              "allowed: conservative, primitive")
+        object.__setattr__(self, "mood_variables", tuple(self.mood_variables))
+        bad = [v for v in self.mood_variables if v not in NAD_VARIABLES]
+        if bad or not self.mood_variables:
+            raise InputError(f"invalid scheme.mood_variables={list(self.mood_variables)!r}; allowed: a non-empty "
+                             f"list of {', '.join(NAD_VARIABLES)}")
+        if not (self.mood_delta_abs >= 0 and self.mood_delta_rel >= 0):
+            raise InputError(f"invalid scheme.mood_delta_abs={self.mood_delta_abs!r} / mood_delta_rel="
+                             f"{self.mood_delta_rel!r}; allowed: >= 0")
+        if isinstance(self.mood_max_iter, bool) or not isinstance(self.mood_max_iter, int) or self.mood_max_iter < 1:
+            raise InputError(f"invalid scheme.mood_max_iter={self.mood_max_iter!r}; allowed: an integer >= 1")
+        if self.limiter == "mood" and self.reconstruction_degree == 0:
+            raise InputError("invalid scheme.limiter='mood' with scheme.reconstruction_degree=0; allowed: MOOD "
+                             "needs a high-order candidate (reconstruction_degree 1..3) to reduce")
         if self.position_update not in POSITION_UPDATES:
             raise InputError(f"invalid scheme.position_update={self.position_update!r}; "
                              f"allowed: {', '.join(POSITION_UPDATES)}")

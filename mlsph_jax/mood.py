@@ -1,0 +1,138 @@
+"""MOOD a-posteriori order reduction inside every SSP-RK3 stage (thesis §3.6.3, eq. 3.12-3.13;
+SPEC §6 and §13.3).
+
+Every stage of :func:`mlsph_jax.integrate.ssp_rk3_step` is a forward-Euler sub-step
+E = z + dt L(z) of the stage input z followed by the Shu-Osher combination a y^n + b E.  With
+``scheme.limiter = "mood"`` the sub-step is computed a posteriori:
+
+1. the particle polynomial degree map (PPD) is reset to the reconstruction degree everywhere
+   (thesis "order 3" = degree 2: quadratic reconstruction);
+2. the candidate E is computed with pair degree min(PPD_i, PPD_j) (:func:`mlsph_jax.rhs.rhs`);
+3. the detector chain flags fluid particles whose candidate is
+   * not finite, or physically inadmissible (PAD, EOS-aware: rho > 0 always; p > 0 for the
+     ideal gas; p + p_c > 0 for the stiffened gas; nothing more for Tait, whose pressure may be
+     <= 0 legitimately, SPEC §13.3 item 22), or
+   * a new extremum (NAD, relaxed discrete maximum principle, eq. 3.12): for each selected
+     variable phi, min_S phi(z) - delta <= phi_i(E) <= max_S phi(z) + delta over the particle's
+     stencil S (support neighbours and the particle itself, SPEC item 19), with
+     delta = max(delta_abs, delta_rel (max_S - min_S)) (eq. 3.13);
+4. flagged particles drop to degree 0 (the parachute: first-order states U_i, U_j, which
+   passes the detectors by construction) and the candidate is recomputed;
+5. 3-4 repeat until no new particle is flagged, at most ``mood_max_iter`` times.
+
+Only two degrees are used (the reconstruction degree and 0), as in the thesis.  Areas, the
+time integrator and (later) viscous fluxes are not order-reduced (SPEC item 24).
+
+Differentiability: the flags are computed from stop-gradient values and the PPD map is an
+integer array, so gradients flow through the selected branch only.  The iteration is a
+``lax.scan`` of fixed length whose body is a ``lax.cond``: once converged, the remaining
+iterations cost nothing, and the whole loop is reverse-mode differentiable (a ``while_loop``
+would not be).
+
+Statistics per stage: the PPD map after the loop, the number of right-hand-side evaluations,
+and whether flags were left unresolved after ``mood_max_iter`` iterations.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from .eos import get_eos, to_primitive
+from .scheme import NAD_VARIABLES, Scheme
+from .state import Kind, Params, Particles
+
+__all__ = ["NAD_VARIABLES", "admissible", "detect", "mood_substep", "nad_fields", "stencil_bounds"]
+
+
+def admissible(U, scheme: Scheme, params: Params):
+    """PAD: finite, positive density and an EOS-admissible pressure, per particle ``[N]``."""
+    eos = get_eos(scheme.eos)
+    prim = to_primitive(U, eos, params)
+    ok = jnp.all(jnp.isfinite(U), axis=1) & (U[:, 0] > 0)
+    if scheme.eos == "ideal_gas":
+        ok = ok & (prim.p > 0)
+    elif scheme.eos == "stiffened_gas":
+        ok = ok & (prim.p + params["eos.pc"] > 0)
+    return ok & jnp.isfinite(prim.p)
+
+
+def nad_fields(U, scheme: Scheme, params: Params):
+    """The variables checked by NAD as columns ``[N, nv]`` (``scheme.mood_variables``)."""
+    eos = get_eos(scheme.eos)
+    prim = to_primitive(U, eos, params)
+    cols = []
+    for name in scheme.mood_variables:
+        if name == "rho":
+            cols.append(prim.rho[:, None])
+        elif name == "p":
+            cols.append(prim.p[:, None])
+        elif name == "vel":
+            cols.append(prim.vel)
+        elif name == "e":
+            if eos.has_energy:
+                cols.append(prim.e[:, None])
+        elif name == "conservative":
+            cols.append(U)
+    return jnp.concatenate(cols, axis=1)
+
+
+def stencil_bounds(phi, idx, mask):
+    """(min, max) of ``phi[N, nv]`` over each particle's stencil (neighbours incl. itself)."""
+    n = phi.shape[0]
+    jsafe = jnp.where(mask, idx, jnp.arange(n, dtype=idx.dtype)[:, None])
+    vals = phi[jsafe]                                    # [N, K, nv]
+    m = mask[..., None]
+    lo = jnp.minimum(jnp.min(jnp.where(m, vals, jnp.inf), axis=1), phi)
+    hi = jnp.maximum(jnp.max(jnp.where(m, vals, -jnp.inf), axis=1), phi)
+    return lo, hi
+
+
+def detect(U_cand, bounds, scheme: Scheme, params: Params):
+    """Flags ``[N]`` of the detector chain (PAD, then NAD against ``bounds = (lo, hi)``)."""
+    U_cand = jax.lax.stop_gradient(U_cand)
+    if scheme.mood_pad:
+        bad = ~admissible(U_cand, scheme, params)
+    else:
+        bad = ~jnp.all(jnp.isfinite(U_cand), axis=1)
+    if scheme.mood_nad:
+        lo, hi = bounds
+        delta = jnp.maximum(scheme.mood_delta_abs, scheme.mood_delta_rel * (hi - lo))
+        phi = nad_fields(U_cand, scheme, params)
+        out = (phi < lo - delta) | (phi > hi + delta) | ~jnp.isfinite(phi)
+        bad = bad | jnp.any(out, axis=1)
+    return bad
+
+
+def mood_substep(z: Particles, params: Params, dt, geom, scheme: Scheme, euler):
+    """The MOOD-limited forward-Euler sub-step of one stage.
+
+    ``euler(z_with_ppd) -> (E, dz)`` computes the candidate for a PPD map (the caller's rhs and
+    update).  Returns ``(E, ppd, n_evals, unresolved)``.
+    """
+    high = scheme.reconstruction_degree
+    fluid = z.kind == Kind.FLUID
+    ppd0 = jnp.full_like(z.ppd, high)
+    U_z = jax.lax.stop_gradient(z.q / z.vol[:, None])
+    bounds = stencil_bounds(nad_fields(U_z, scheme, params), geom.idx, geom.mask) if scheme.mood_nad else None
+
+    def flags(E, ppd):
+        return detect(E.q / E.vol[:, None], bounds, scheme, params) & fluid & (ppd > 0)
+
+    E0 = euler(z.replace(ppd=ppd0))
+    f0 = flags(E0, ppd0)
+
+    def body(c, _):
+        E, ppd, f, n = c
+
+        def redo(c):
+            E, ppd, f, n = c
+            ppd = jnp.where(f, 0, ppd)
+            E = euler(z.replace(ppd=ppd))
+            return E, ppd, flags(E, ppd), n + 1
+
+        return jax.lax.cond(jnp.any(f), redo, lambda c: c, c), None
+
+    (E, ppd, f, n), _ = jax.lax.scan(body, (E0, ppd0, f0, jnp.asarray(1, jnp.int32)), None,
+                                     length=scheme.mood_max_iter)
+    return E, ppd, n, jnp.any(f)
