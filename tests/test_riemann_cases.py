@@ -34,7 +34,8 @@ BOUNDS = {  # (n, l1_rho, l1_u, l1_p)
 
 @functools.cache
 def run(case: str, n: int, *extra: str) -> dict:
-    cfg = config.load(CONFIGS[case], [f"case.n={n}", "scheme.reconstruction_degree=0", *extra])
+    cfg = config.load(CONFIGS[case], [f"case.n={n}", "scheme.method=mlsph_ale", "scheme.reconstruction_degree=0",
+                                      "scheme.limiter=none", *extra])
     res = run_problem(build_problem(cfg), cfg, quiet=True)
     assert res.summary["status"] == "ok"
     assert res.summary["t_final"] == pytest.approx(cfg["time"]["t_end"], rel=1e-12)

@@ -9,7 +9,10 @@ act as neighbours but are never updated (the waves must not reach them before ``
 Metrics (against :mod:`mlsph_jax.reference.riemann`): ``l1_rho``, ``l1_u``, ``l1_p`` =
 sum_i V_i |phi_i - phi_exact(x_i)| / ((b - a) * range(phi_exact)), over fluid particles, where
 range is max - min of the exact profile (the jump size; for R1's velocity, whose end states are
-equal, it is the star velocity).
+equal, it is the star velocity).  ``overshoot_rho``, ``overshoot_u``, ``overshoot_p`` and their
+maximum ``overshoot``: the largest new extremum relative to the jump, i.e. over the interior
+local extrema of the particle profile, the excess beyond the exact solution's extremum within
++-5 particle spacings (:func:`new_extremum`), divided by range(phi_exact).
 """
 
 from __future__ import annotations
@@ -100,7 +103,39 @@ def l1_errors(p: Particles, t: float, P, exact: ExactRiemann, eos_kind: str, spa
     for k in ("rho", "u", "p"):
         rng = float(np.max(fine[k]) - np.min(fine[k]))
         out[f"l1_{k}"] = float(np.sum(vol * np.abs(f[k] - ex[k])) / ((span[1] - span[0]) * max(rng, 1e-300)))
+    for k in ("rho", "u", "p"):
+        rng = float(np.max(fine[k]) - np.min(fine[k]))
+        out[f"overshoot_{k}"] = new_extremum(x, f[k], lambda xs, k=k: exact(xs, t)[k],
+                                             OVERSHOOT_WINDOW * float(np.mean(vol))) / max(rng, 1e-300)
+    out["overshoot"] = max(out[f"overshoot_{k}"] for k in ("rho", "u", "p"))
     return out
+
+
+#: Half-width of the window (in particle spacings) over which a numerical extremum is compared
+#: with the exact solution's extremum (module docstring).
+OVERSHOOT_WINDOW = 5
+
+
+def new_extremum(x, f, exact_fn, w: float) -> float:
+    """Largest new extremum of the particle profile ``f(x)``: over the interior local maxima
+    (minima) of the numerical profile, the largest amount by which f exceeds the maximum (falls
+    below the minimum) of the exact solution within ``[x_i - w, x_i + w]``.  Smearing creates no
+    interior extrema, so only spurious oscillations (overshoots, undershoots, wiggles) count."""
+    o = np.argsort(x)
+    x, f = x[o], f[o]
+    fm, fc, fp = f[:-2], f[1:-1], f[2:]
+    is_max = (fc >= fm) & (fc >= fp) & ((fc > fm) | (fc > fp))
+    is_min = (fc <= fm) & (fc <= fp) & ((fc < fm) | (fc < fp))
+    xs = np.linspace(-w, w, 201)
+    worst = 0.0
+    for sel, sign in ((is_max, 1.0), (is_min, -1.0)):
+        i = np.flatnonzero(sel) + 1
+        if i.size == 0:
+            continue
+        ex = exact_fn((x[i][:, None] + xs[None, :]).ravel()).reshape(i.size, xs.size)
+        bound = ex.max(axis=1) if sign > 0 else ex.min(axis=1)
+        worst = max(worst, float(np.max(sign * (f[i] - bound))))
+    return max(worst, 0.0)
 
 
 def plot_profiles(path: Path, p: Particles, t: float, P, exact: ExactRiemann, eos_kind: str, title: str = ""):
