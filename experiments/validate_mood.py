@@ -1,0 +1,103 @@
+"""First order vs MOOD on the 1D Riemann problems (thesis Fig. 3.3 and 3.4; Sod).
+
+For each built-in config (MOOD on, as shipped) and each particle count, runs the config and its
+first-order version (``scheme.reconstruction_degree=0 scheme.limiter=none``), prints L1 errors,
+overshoots and MOOD statistics, draws the two solutions side by side against the exact one
+(docs/figures/<config>_first_vs_mood.png, at the config's own resolution) and writes
+experiments/output/mood_validation.json (numbers quoted in docs/validation.md).
+
+    python experiments/validate_mood.py [--sizes 100 200 400]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from mlsph_jax import config  # noqa: E402
+from mlsph_jax.cases import build_problem  # noqa: E402
+from mlsph_jax.cases.riemann_1d import _exact, _fields  # noqa: E402
+from mlsph_jax.simulation import run_problem  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+CONFIGS = {"R1 (Tait)": "configs/riemann_r1_tait.toml", "R2 (stiffened gas)": "configs/riemann_r2_tammann.toml",
+           "Sod (ideal gas)": "configs/sod_ideal_gas.toml"}
+FIRST = ["scheme.reconstruction_degree=0", "scheme.limiter=none"]
+
+
+def run(path: str, over: list[str]):
+    cfg = config.load(ROOT / path, ["output.progress=false", *over])
+    pb = build_problem(cfg)
+    return cfg, pb, run_problem(pb, cfg, quiet=True)
+
+
+def figure(dest: Path, title: str, cfg, pb, results):
+    exact = _exact(cfg)
+    t = cfg["time"]["t_end"]
+    names = ["rho", "u", "p"]
+    fig, axes = plt.subplots(2, 3, figsize=(12.5, 6.2), sharex=True)
+    for row, (label, res) in enumerate(results.items()):
+        x, _, f = _fields(res.particles, pb.params, cfg["eos"]["kind"])
+        xf = np.linspace(x.min(), x.max(), 2000)
+        ex = exact(xf, t)
+        ppd = np.asarray(res.particles.ppd)[np.asarray(res.particles.kind) == 0]
+        for ax, k in zip(axes[row], names, strict=True):
+            ax.plot(xf, ex[k], "k-", lw=1.1, label="exact")
+            ax.plot(x, f[k], "o", ms=3, mfc="none", color="tab:blue", label=label)
+            if label.startswith("MOOD"):
+                dem = ppd == 0
+                ax.plot(x[dem], f[k][dem], "x", ms=4, color="tab:red", label="demoted (last step)")
+            ax.set_title(f"{label}: {k}", fontsize=9)
+        axes[row][0].legend(fontsize=7)
+    for ax in axes[1]:
+        ax.set_xlabel("x")
+    fig.suptitle(f"{title}, n={cfg['case']['n']}, t={t:g}", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(dest, dpi=110)
+    plt.close(fig)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sizes", type=int, nargs="*", default=[], help="extra particle counts (refinement)")
+    ap.add_argument("--figures", default=str(ROOT / "docs" / "figures"))
+    args = ap.parse_args()
+    figs = Path(args.figures)
+    figs.mkdir(parents=True, exist_ok=True)
+    out = {}
+    print(f"{'case':<20} {'n':>5} {'scheme':<12} {'l1_rho':>8} {'l1_u':>8} {'l1_p':>8} {'overshoot':>9} "
+          f"{'demoted':>8} {'RHS/stage':>9} {'steps':>6} {'wall s':>7}")
+    for name, path in CONFIGS.items():
+        n0 = config.load(ROOT / path)["case"]["n"]
+        rows = []
+        for n in [n0, *[s for s in args.sizes if s != n0]]:
+            results = {}
+            for label, over in (("first order", FIRST), ("MOOD", [])):
+                cfg, pb, res = run(path, [f"case.n={n}", *over])
+                s = res.summary
+                m, mood = s["metrics"], s.get("mood", {})
+                rows.append({"n": n, "scheme": label, **m, "mood": mood, "n_steps": s["n_steps"],
+                             "wall_time_s": s["wall_time_s"], "compile_time_s": s["compile_time_s"],
+                             "method": s["scheme"]["method"]})
+                print(f"{name:<20} {n:>5} {label:<12} {m['l1_rho']:>8.4f} {m['l1_u']:>8.4f} {m['l1_p']:>8.4f} "
+                      f"{m['overshoot']:>9.4f} {mood.get('flagged_fraction_mean', 0):>8.3f} "
+                      f"{mood.get('rhs_evaluations_per_stage', 1):>9.2f} {s['n_steps']:>6} {s['wall_time_s']:>7.1f}")
+                results[f"{label} ({s['scheme']['method']})"] = res
+            if n == n0:
+                figure(figs / f"{Path(path).stem}_first_vs_mood.png", name, cfg, pb, results)
+        out[name] = {"config": path, "runs": rows}
+    dest = ROOT / "experiments" / "output"
+    dest.mkdir(parents=True, exist_ok=True)
+    (dest / "mood_validation.json").write_text(json.dumps(out, indent=2))
+    print(f"wrote {dest / 'mood_validation.json'} and figures in {figs}")
+
+
+if __name__ == "__main__":
+    main()
