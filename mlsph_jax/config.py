@@ -360,15 +360,38 @@ SCHEMA_COMMON: dict[str, dict[str, Key]] = {
         "self_flux": Key(bool, True,
                          doc="include the self-flux term -F_i.sum_j A_ij (thesis default; keeps "
                              "uniform states exact, conserves only up to a quadrature defect)"),
-        "frame": Key(str, "eulerian", choices=("eulerian", "lagrangian"),
-                     doc="ALE frame velocity: eulerian (w = 0, particles fixed) or lagrangian "
-                         "(w = u)"),
+        "frame": Key(str, "eulerian", choices=("eulerian", "lagrangian", "ale_shift"),
+                     doc="ALE frame velocity: eulerian (w = 0, particles fixed), lagrangian "
+                         "(w = u) or ale_shift (w = u + particle-shifting drift, SPEC §9)"),
+        "shift_coefficient": Key(float, 0.02, minimum=0.0,
+                                 doc="coefficient C of the ale_shift drift dw_i = C U_max sum_j "
+                                     "(r_i/r_ij)^2 e_ji (mlsph_jax.rhs.shifting_velocity)"),
+        "stress": Key(str, "stokes", choices=("stokes", "incompressible"),
+                      doc="viscous stress: stokes (mu (grad u + grad u^T - 2/3 div u I)) or "
+                          "incompressible (no -2/3 div u term, thesis ch. 3)"),
         "position_update": Key(str, "mls", choices=("mls", "shepard", "w_i"),
                                doc="velocity that moves the particles: MLS interpolant of w, "
                                    "Shepard average of w, or the particle's own w_i"),
         "limiter": Key(str, "none", choices=("none", "mood"),
                        doc="a-posteriori limiter: none or MOOD (local reduction of the "
                            "reconstruction degree)"),
+        "mood_variables": Key(list, ["rho", "p"], item_type=str, choices=("rho", "p", "vel", "e", "conservative"),
+                              doc="variables checked by the MOOD NAD detector (relaxed discrete maximum "
+                                  "principle, thesis eq. 3.12); vel = every velocity component, "
+                                  "conservative = every component of U"),
+        "mood_delta_abs": Key(float, 1e-4, minimum=0.0,
+                              doc="absolute NAD tolerance floor (thesis eq. 3.13; in the variable's units)"),
+        "mood_delta_floor": Key(str, "scaled", choices=("scaled", "absolute"),
+                                doc="NAD floor: scaled = mood_delta_abs * max |phi| over the stencil "
+                                    "(default; unit-free), absolute = mood_delta_abs as printed in "
+                                    "thesis eq. 3.13 (in the variable's units: Pa, kg/m^3)"),
+        "mood_delta_rel": Key(float, 1e-3, minimum=0.0,
+                              doc="NAD tolerance relative to the stencil range max - min (thesis eq. 3.13)"),
+        "mood_pad": Key(bool, True, doc="MOOD physical-admissibility detector (finite, rho > 0; p > 0 for "
+                                        "the ideal gas, p + pc > 0 for the stiffened gas)"),
+        "mood_nad": Key(bool, True, doc="MOOD numerical-admissibility detector (no new extrema)"),
+        "mood_max_iter": Key(int, 8, minimum=1,
+                             doc="bound on the MOOD detect-and-demote iterations per Runge-Kutta stage"),
         "neighbor_headroom": Key(float, 1.3, minimum=1.0,
                                  doc="neighbour-list capacity as a multiple of the largest initial "
                                      "neighbour count"),
@@ -378,6 +401,8 @@ SCHEMA_COMMON: dict[str, dict[str, Key]] = {
                      doc="final physical time"),
         "cfl": Key(float, 0.3, minimum=0.0, maximum=1.0, exclusive_minimum=True,
                    doc="CFL number C in dt = C min_i dx_i / (|u_i - w_i| + c_i)"),
+        "cfl_viscous": Key(float, 0.125, minimum=0.0, maximum=1.0, exclusive_minimum=True,
+                           doc="viscous time-step factor: dt <= cfl_viscous min_i rho_i dx_i^2 / mu"),
         "dt": Key(float, 0.0, minimum=0.0, unit="s", note="0 = adaptive",
                   doc="fixed time step; 0 selects the adaptive CFL step"),
         "max_steps": Key(int, 1_000_000, minimum=1,
@@ -400,6 +425,9 @@ SCHEMA_COMMON: dict[str, dict[str, Key]] = {
     "physics": {
         "mu": Key(float, 0.0, minimum=0.0, unit="Pa s",
                   doc="dynamic viscosity (0 = inviscid Euler equations)"),
+        "kappa": Key(float, 0.0, minimum=0.0, unit="kg/(m s)",
+                     doc="heat conduction coefficient k/c_v of q = -kappa grad e (0 = none; ignored "
+                         "for the Tait EOS, which has no energy equation)"),
         "body_force": Key(list, [], item_type=float, unit="m/s^2",
                           note="empty, or one component per space dimension",
                           doc="body-force acceleration vector (empty = no body force)"),
@@ -1082,6 +1110,76 @@ RIEMANN_1D = register_case_schema(
     defaults_override={"scheme.frame": "lagrangian"},
     doc="One-dimensional Riemann problem (shock tube): two constant states separated by an "
         "interface at `x_interface`.")
+
+
+BLAST_2D_LAYOUTS = ("rings", "delaunay", "perturbed")
+
+
+def check_blast_2d(cfg: dict) -> None:
+    """`eos.kind` must be tait (the radial reference solves the barotropic Tait equations).
+    0 < `r_interface` < `radius`; `dx` <= `r_interface`/5 (at least five spacings across the
+    high-density region); `perturbation` is used by the perturbed layout only. The far field
+    beyond `radius` is frozen, so the waves must stay inside the disc: `r_interface` +
+    s_max `time.t_end` < `radius`, with the signal-speed bound s_max = c_max (1 + ln(rho_max /
+    rho_min)) (largest sound speed times one plus the largest possible |u*|/c_max of a Tait
+    Riemann problem from rest)."""
+    c, eos = cfg["case"], cfg["eos"]
+    problems = []
+    if eos["kind"] != "tait":
+        problems.append(f"invalid eos.kind={_show(eos['kind'])}: case blast_2d compares with a "
+                        "radial reference for the barotropic Tait EOS; allowed: \"tait\"")
+    radius, r_if, dx = c["radius"], c["r_interface"], c["dx"]
+    if not r_if < radius:
+        problems.append(f"invalid case.r_interface={_show(r_if)}: outside the disc; allowed: a "
+                        f"float in (0.0, case.radius={_show(radius)})")
+    elif not dx <= r_if / 5.0:
+        problems.append(f"invalid case.dx={_show(dx)}: too coarse; allowed: a float in "
+                        f"(0.0, case.r_interface/5 = {_show(r_if / 5.0)}]")
+    elif eos["kind"] == "tait":
+        rho_max, rho_min = max(c["rho_in"], c["rho_out"]), min(c["rho_in"], c["rho_out"])
+        c_max = eos["c0"] * (rho_max / eos["rho0"]) ** (0.5 * (eos["gamma"] - 1.0))
+        s_max = c_max * (1.0 + math.log(rho_max / rho_min))
+        t_end = cfg["time"]["t_end"]
+        if r_if + s_max * t_end >= radius:
+            problems.append(f"invalid time.t_end={_show(t_end)}: the waves may reach the frozen far "
+                            f"field at case.radius={_show(radius)} (signal-speed bound "
+                            f"{s_max:.6g} m/s); allowed: t_end < "
+                            f"{_show((radius - r_if) / s_max)} s")
+    if problems:
+        raise ConfigError(_join(problems))
+
+
+BLAST_2D_KEYS: dict[str, Key] = {
+    "radius": Key(float, 0.1, minimum=0.0, exclusive_minimum=True, unit="m",
+                  doc="radius R of the fluid disc (centred at the origin; frozen far field beyond)"),
+    "r_interface": Key(float, 0.05, minimum=0.0, exclusive_minimum=True, unit="m",
+                       doc="radius of the initial discontinuity"),
+    "rho_in": Key(float, 1100.0, minimum=0.0, exclusive_minimum=True, unit="kg/m^3",
+                  doc="density for r <= r_interface (fluid at rest)"),
+    "rho_out": Key(float, 1000.0, minimum=0.0, exclusive_minimum=True, unit="kg/m^3",
+                   doc="density for r > r_interface (fluid at rest)"),
+    "layout": Key(str, "delaunay", choices=BLAST_2D_LAYOUTS,
+                  doc="initial particles: concentric rings, Delaunay triangle barycentres, or "
+                      "randomly perturbed Delaunay barycentres (thesis Fig. 3.5)"),
+    "dx": Key(float, 2e-3, minimum=0.0, exclusive_minimum=True, unit="m",
+              doc="particle spacing, N ~ pi R^2 / dx^2 (2e-3: ~7,800 particles, minutes on 2 "
+                  "CPU cores); thesis resolution: 5.9e-4 (rings, ~90,000) and 6.5e-4 "
+                  "(delaunay/perturbed, ~75,000)"),
+    "perturbation": Key(float, 0.2, minimum=0.0, maximum=0.5,
+                        doc="perturbed layout: random displacement of each particle within a "
+                            "disc of radius perturbation * sqrt(V_i)"),
+    "seed": Key(int, 0, minimum=0, doc="random seed of the delaunay and perturbed layouts"),
+    "reference_cells": Key(int, 4000, minimum=100,
+                           doc="cells of the 1-D radial finite-volume reference on [0, radius]"),
+}
+
+BLAST_2D = register_case_schema(
+    "blast_2d", BLAST_2D_KEYS, check=check_blast_2d, dim=2,
+    defaults_override={"scheme.frame": "lagrangian", "eos.kind": "tait", "eos.rho0": 1000.0,
+                       "eos.c0": 1466.0, "time.t_end": 1e-5},
+    doc="Two-dimensional blast explosion (cylindrical Tait shock tube, thesis §3.7.2): a disc "
+        "of radius `radius` at rest, density `rho_in` inside `r_interface` and `rho_out` "
+        "outside, compared with a 1-D radial finite-volume reference.")
 
 
 if __name__ == "__main__":  # pragma: no cover

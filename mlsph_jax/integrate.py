@@ -55,6 +55,7 @@ class StepControl:
     """Static time-step settings: CFL number, fixed step (0 = adaptive), underflow threshold."""
 
     cfl: float = 0.3
+    cfl_viscous: float = 0.125
     dt_fixed: float = 0.0
     dt_min: float = 0.0
 
@@ -76,9 +77,22 @@ class Carry:
 MOOD_STATS = ("flagged_fraction_max", "flagged_fraction_sum", "rhs_evaluations", "unresolved_stages")
 
 
-def cfl_dt(particles: Particles, params: Params, scheme: Scheme, cfl: float):
-    """C min_i V_i^(1/d) / (|u_i - w_i| + c_i) over fluid particles (SPEC §7.1)."""
-    return cfl * jnp.min(_local_dt(particles, params, scheme))
+def cfl_dt(particles: Particles, params: Params, scheme: Scheme, cfl: float, cfl_viscous: float = 0.125):
+    """C min_i V_i^(1/d) / (|u_i - w_i| + c_i) over fluid particles (SPEC §7.1), and with viscous
+    (heat) fluxes also C_v min_i rho_i dx_i^2 / mu (kappa) (explicit diffusion limit)."""
+    dt = cfl * jnp.min(_local_dt(particles, params, scheme))
+    if scheme.viscous or scheme.heat_conduction:
+        rho = particles.q[:, 0] / particles.vol
+        dx2 = particles.vol ** (2.0 / particles.dim)
+        diff = jnp.zeros(())
+        if scheme.viscous:
+            diff = diff + params["physics.mu"]
+        if scheme.heat_conduction and "physics.kappa" in params:
+            diff = jnp.maximum(diff, params["physics.kappa"])
+        fluid = particles.kind == Kind.FLUID
+        dtv = jnp.min(jnp.where(fluid, rho * dx2, jnp.inf)) / jnp.maximum(diff, 1e-300)
+        dt = jnp.minimum(dt, cfl_viscous * dtv)
+    return dt
 
 
 def _local_dt(particles: Particles, params: Params, scheme: Scheme):
@@ -138,7 +152,7 @@ SSP_RK3_A = (0.0, 0.75, 1.0 / 3.0)  # Shu-Osher form: z_{k+1} = a_k y + b_k (z_k
 SSP_RK3_B = (1.0, 0.25, 2.0 / 3.0)
 
 
-def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn):
+def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, boundary=None):
     """One SSP-RK3 step.  ``geom_fn(p)`` returns the Geometry of a stage (constant for Eulerian
     runs).  Each stage is a forward-Euler sub-step E = z + dt L(z) combined as a y^n + b E; with
     ``scheme.limiter == "mood"`` the sub-step is MOOD-limited (:mod:`mlsph_jax.mood`).
@@ -148,13 +162,17 @@ def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn):
     per-particle degree used in the three stages (the state's ``ppd`` field carries it out).
 
     The three stages run as a ``lax.scan`` over the Shu-Osher coefficients, so the right-hand
-    side is traced (and compiled) once, not three times.
+    side is traced (and compiled) once, not three times.  ``boundary`` (e.g.
+    :class:`mlsph_jax.boundaries.MirrorWalls`) regenerates ghost particles before every stage
+    and after the step.
     """
     mood_on = scheme.limiter == "mood"
 
     def stage(carry, ab):
         z, overflow, ppd_min, n_evals, unresolved = carry
         a, b = ab
+        if boundary is not None:
+            z = boundary.apply(z, params)
         geom = geom_fn(z)
 
         def euler(zz):
@@ -174,6 +192,8 @@ def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn):
     ppd_start = jnp.full_like(p.ppd, scheme.reconstruction_degree) if mood_on else p.ppd
     init = (p, jnp.asarray(False), ppd_start, jnp.asarray(0, jnp.int32), jnp.asarray(0, jnp.int32))
     (out, overflow, ppd_min, n_evals, unresolved), _ = jax.lax.scan(stage, init, coeffs)
+    if boundary is not None:
+        out = boundary.apply(out, params)
     return out.replace(ppd=ppd_min), overflow, (ppd_min, n_evals, unresolved)
 
 
@@ -185,7 +205,7 @@ def _mood_stats(stats, p: Particles, scheme: Scheme):
     return jnp.stack([demoted, demoted, n_evals.astype(demoted.dtype), unresolved.astype(demoted.dtype)])
 
 
-def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: int, nspec=None):
+def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: int, nspec=None, boundary=None):
     """Build ``chunk(carry, params, static_geom, t_stop) -> carry`` running ``n_steps`` steps.
 
     For Eulerian schemes pass the precomputed Geometry as ``static_geom``; for moving particles
@@ -200,11 +220,11 @@ def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: in
 
             def advance(c: Carry) -> Carry:
                 dt = (jnp.asarray(control.dt_fixed) if control.dt_fixed > 0
-                      else cfl_dt(c.particles, params, scheme, control.cfl))
+                      else cfl_dt(c.particles, params, scheme, control.cfl, control.cfl_viscous))
                 remaining = t_stop - c.t
                 last = dt >= remaining
                 dt = jnp.minimum(dt, remaining)
-                newp, overflow, stats = ssp_rk3_step(c.particles, params, dt, scheme, geom_fn)
+                newp, overflow, stats = ssp_rk3_step(c.particles, params, dt, scheme, geom_fn, boundary)
                 st, bad = health(newp)
                 st = jnp.where(overflow, Status.NEIGHBOR_OVERFLOW, st)
                 underflow = (dt < control.dt_min) & ~last

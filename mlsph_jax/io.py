@@ -326,6 +326,16 @@ def make_summary(*, case: str, scheme: Mapping, n_particles: int, n_steps: int, 
             "conservation": dict(conservation or {}), **extra}
 
 
+def write_timeseries(out_dir: str | Path, rows) -> Path:
+    """Write ``out_dir/timeseries.csv``: one row per output time, columns ``t`` and the case's
+    diagnostics (e.g. kinetic energy)."""
+    path = Path(out_dir) / "timeseries.csv"
+    keys = list(rows[0])
+    lines = [",".join(keys)] + [",".join(repr(float(r[k])) for k in keys) for r in rows]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
 def write_summary(out_dir: str | Path, summary: Mapping) -> Path:
     """Write ``out_dir/summary.json`` (pretty printed, atomically) and return its path.
 

@@ -15,7 +15,10 @@ E = z + dt L(z) of the stage input z followed by the Shu-Osher combination a y^n
    * a new extremum (NAD, relaxed discrete maximum principle, eq. 3.12): for each selected
      variable phi, min_S phi(z) - delta <= phi_i(E) <= max_S phi(z) + delta over the particle's
      stencil S (support neighbours and the particle itself, SPEC item 19), with
-     delta = max(delta_abs, delta_rel (max_S - min_S)) (eq. 3.13);
+     delta = max(delta_abs, delta_rel (max_S - min_S)) (eq. 3.13).  The printed floor delta_abs
+     = 1e-4 is absolute, i.e. in Pa for a pressure of 1e9 Pa, where round-off alone exceeds it
+     and flat regions get flagged; by default (``mood_delta_floor = "scaled"``, SPEC item 21)
+     the floor is delta_abs max_S |phi|, ``"absolute"`` keeps the printed form;
 4. flagged particles drop to degree 0 (the parachute: first-order states U_i, U_j, which
    passes the detectors by construction) and the candidate is recomputed;
 5. 3-4 repeat until no new particle is flagged, at most ``mood_max_iter`` times.
@@ -97,7 +100,10 @@ def detect(U_cand, bounds, scheme: Scheme, params: Params):
         bad = ~jnp.all(jnp.isfinite(U_cand), axis=1)
     if scheme.mood_nad:
         lo, hi = bounds
-        delta = jnp.maximum(scheme.mood_delta_abs, scheme.mood_delta_rel * (hi - lo))
+        floor = scheme.mood_delta_abs
+        if scheme.mood_delta_floor == "scaled":
+            floor = floor * jnp.maximum(jnp.abs(lo), jnp.abs(hi))
+        delta = jnp.maximum(floor, scheme.mood_delta_rel * (hi - lo))
         phi = nad_fields(U_cand, scheme, params)
         out = (phi < lo - delta) | (phi > hi + delta) | ~jnp.isfinite(phi)
         bad = bad | jnp.any(out, axis=1)

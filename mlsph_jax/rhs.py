@@ -53,6 +53,7 @@ from .flux import ale_flux_dot, rusanov_components
 from .kernels import get_kernel
 from .scheme import Scheme
 from .state import Domain, Kind, Params, Particles
+from .viscous import viscous_terms
 
 
 @jax.tree_util.register_dataclass
@@ -135,7 +136,7 @@ def geometry(x, vol, nl, scheme: Scheme, domain: Domain) -> Geometry:
         interp = None
     if scheme.position_update == "shepard" or (interp is None and scheme.position_update == "mls"):
         interp = _shepard_weights(dx, h, jsafe, mask, vol, kern)
-    if coeffs is None and scheme.reconstruction_degree > 0:
+    if coeffs is None and scheme.needs_fit:
         coeffs = apx.build_from_offsets(dx, h, vol, idx, mask, scheme.reconstruction_spec(),
                                         coeffs_only=True).coeffs
     A = jnp.where(pair_mask[..., None], A, 0.0)
@@ -143,13 +144,36 @@ def geometry(x, vol, nl, scheme: Scheme, domain: Domain) -> Geometry:
 
 
 def frame_velocity(U, kind, scheme: Scheme, params: Params):
-    """w_i: zero (Eulerian) or the fluid velocity (Lagrangian); non-fluid particles do not move."""
+    """w_i: zero (Eulerian) or the fluid velocity (Lagrangian and, before the shift of
+    :func:`shifting_velocity`, ALE); non-fluid particles do not move."""
     eos = get_eos(scheme.eos)
     if scheme.frame == "eulerian":
         d = U.shape[1] - eos.n_vars(1) + 1
         return jnp.zeros((U.shape[0], d), U.dtype)
     vel = to_primitive(U, eos, params).vel
     return jnp.where((kind == Kind.FLUID)[:, None], vel, 0.0)
+
+
+def shifting_velocity(w, geom: Geometry, kind, scheme: Scheme):
+    """Particle-shifting drift dw_i of the ``ale_shift`` frame, w_i = u_i + dw_i (SPEC §9 [REC],
+    Xu et al. 2009 type repulsion, within the ALE frame of thesis T:L1563-1565):
+
+        dw_i = C U_max sum_j (r_i / r_ij)^2 (x_i - x_j) / r_ij,
+
+    r_i the mean neighbour distance of i, U_max = max |u| over fluid particles and C =
+    ``scheme.shift_coefficient``.  It vanishes on regular lattices and pushes particles apart
+    where they cluster; because the fluxes are computed relative to w (ALE, eq. 4.36 and 4.32),
+    no interpolation correction is needed.  Ghost/frozen neighbours repel too (walls)."""
+    r2 = jnp.sum(geom.dx * geom.dx, axis=-1)
+    pos = geom.pair_mask & (r2 > 0)
+    r = jnp.sqrt(jnp.where(pos, r2, 1.0))
+    cnt = jnp.maximum(jnp.sum(pos, axis=1), 1)
+    rbar = jnp.sum(jnp.where(pos, r, 0.0), axis=1) / cnt
+    wt = jnp.where(pos, (rbar[:, None] / r) ** 2 / r, 0.0)
+    drift = -jnp.sum(wt[..., None] * geom.dx, axis=1) / cnt[:, None]   # dx = x_j - x_i
+    fluid = kind == Kind.FLUID
+    umax = jnp.max(jnp.where(fluid, jnp.sqrt(jnp.sum(w * w, axis=1) + 1e-300), 0.0))
+    return jnp.where(fluid[:, None], scheme.shift_coefficient * umax * drift, 0.0)
 
 
 def _cols(a):
@@ -215,6 +239,8 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme):
     U = q / vol[:, None]
     prim = to_primitive(U, eos, params)
     w = frame_velocity(U, kind, scheme, params)
+    if scheme.frame == "ale_shift":
+        w = w + shifting_velocity(w, geom, kind, scheme)
     jsafe = geom.jsafe
     eulerian = scheme.frame == "eulerian"
     interp = not eulerian and scheme.position_update != "w_i"
@@ -280,6 +306,8 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme):
     dq = -sums[:, :nv]
     if scheme.self_flux:
         dq = dq + ale_flux_dot(U, prim, w, sums[:, nv:nv + d], eos)
+    if scheme.viscous:
+        dq = dq + viscous_terms(prim, geom, scheme, params, scheme.fit_degree)
     dq = dq + vol[:, None] * source(U, prim, params, eos)
     if eulerian:
         dvol, dxdt = jnp.zeros_like(vol), jnp.zeros_like(x)

@@ -27,6 +27,7 @@ METHODS.register("sph_ale")(
 FRAMES = Registry("scheme.frame")
 FRAMES.register("eulerian")("w = 0")
 FRAMES.register("lagrangian")("w = u")
+FRAMES.register("ale_shift")("w = u + dw (particle shifting, SPEC §9)")
 POSITION_UPDATES = ("mls", "shepard", "w_i")
 RECONSTRUCTIONS = ("taylor", "mls_direct")
 LIMITERS = Registry("scheme.limiter")
@@ -49,10 +50,14 @@ class Scheme:
     reconstruction_variables: ``conservative`` | ``primitive``
     flux, wave_speed, dissipation_normal: numerical flux options (:mod:`mlsph_jax.flux`)
     self_flux:                keep the -F_i . sum_j A_ij term (thesis eq. 4.36)
-    frame:                    ``eulerian`` | ``lagrangian``
+    frame:                    ``eulerian`` | ``lagrangian`` | ``ale_shift`` (w = u + dw)
+    shift_coefficient:        C of the shifting drift (:func:`mlsph_jax.rhs.shifting_velocity`)
     position_update:          ``mls`` (the method's own interpolant of w: MLS for mlsph_ale, the
                               Shepard kernel average T(3.7) for sph_ale) | ``shepard`` | ``w_i``
     limiter:                  ``none`` | ``mood``
+    viscous, heat_conduction: include the viscous stress / heat flux (:mod:`mlsph_jax.viscous`;
+                              set by the case builders from physics.mu > 0 / physics.kappa > 0)
+    stress:                   ``stokes`` (with -2/3 div u) | ``incompressible`` (thesis ch. 3)
     mood_*:                   MOOD detectors (:mod:`mlsph_jax.mood`): NAD variables, delta_abs and
                               delta_rel of eq. 3.13, PAD/NAD switches, iteration bound
     eos:                      EOS kind
@@ -73,11 +78,16 @@ class Scheme:
     dissipation_normal: str = "area"
     self_flux: bool = True
     frame: str = "eulerian"
+    shift_coefficient: float = 0.02
     position_update: str = "mls"
     limiter: str = "none"
+    viscous: bool = False
+    heat_conduction: bool = False
+    stress: str = "stokes"
     mood_variables: tuple[str, ...] = ("rho", "p")
     mood_delta_abs: float = 1e-4
     mood_delta_rel: float = 1e-3
+    mood_delta_floor: str = "scaled"
     mood_pad: bool = True
     mood_nad: bool = True
     mood_max_iter: int = 8
@@ -115,11 +125,15 @@ class Scheme:
         if not (self.mood_delta_abs >= 0 and self.mood_delta_rel >= 0):
             raise InputError(f"invalid scheme.mood_delta_abs={self.mood_delta_abs!r} / mood_delta_rel="
                              f"{self.mood_delta_rel!r}; allowed: >= 0")
+        if self.mood_delta_floor not in ("scaled", "absolute"):
+            raise InputError(f"invalid scheme.mood_delta_floor={self.mood_delta_floor!r}; allowed: scaled, absolute")
         if isinstance(self.mood_max_iter, bool) or not isinstance(self.mood_max_iter, int) or self.mood_max_iter < 1:
             raise InputError(f"invalid scheme.mood_max_iter={self.mood_max_iter!r}; allowed: an integer >= 1")
         if self.limiter == "mood" and self.reconstruction_degree == 0:
             raise InputError("invalid scheme.limiter='mood' with scheme.reconstruction_degree=0; allowed: MOOD "
                              "needs a high-order candidate (reconstruction_degree 1..3) to reduce")
+        if self.stress not in ("stokes", "incompressible"):
+            raise InputError(f"invalid scheme.stress={self.stress!r}; allowed: stokes, incompressible")
         if self.position_update not in POSITION_UPDATES:
             raise InputError(f"invalid scheme.position_update={self.position_update!r}; "
                              f"allowed: {', '.join(POSITION_UPDATES)}")
@@ -142,14 +156,25 @@ class Scheme:
     def support(self) -> float:
         return get_kernel(self.kernel).support
 
+    @property
+    def needs_fit(self) -> bool:
+        """Whether per-particle MLS fits are needed (high-order reconstruction or viscous fluxes)."""
+        return self.reconstruction_degree > 0 or self.viscous
+
+    @property
+    def fit_degree(self) -> int:
+        """Degree of the fixed-centre fit: the reconstruction degree, or (first-order convective
+        states with viscous fluxes) the area degree, at least 1."""
+        return self.reconstruction_degree if self.reconstruction_degree > 0 else max(self.degree, 1)
+
     def area_spec(self) -> ApproxSpec:
         """Shape functions of the MLSPH-ALE area vectors (coefficients kept when they can be
-        reused for the reconstruction)."""
-        reuse = (self.approximation == "mls" and self.degree == self.reconstruction_degree)
+        reused for the reconstruction and the viscous gradients)."""
+        reuse = self.approximation == "mls" and self.degree == self.fit_degree
         return ApproxSpec(self.approximation, self.degree, self.kernel, self.derivative, self.rcond,
-                          with_coeffs=reuse and self.reconstruction_degree > 0)
+                          with_coeffs=reuse and self.needs_fit)
 
     def reconstruction_spec(self) -> ApproxSpec:
-        """Fixed-centre MLS fit used for the reconstruction (and SPH-ALE Taylor derivatives)."""
-        return ApproxSpec("mls", self.reconstruction_degree, self.kernel, "fixed_centre", self.rcond,
-                          with_coeffs=True)
+        """Fixed-centre MLS fit used for the reconstruction, SPH-ALE Taylor derivatives and the
+        viscous gradients."""
+        return ApproxSpec("mls", self.fit_degree, self.kernel, "fixed_centre", self.rcond, with_coeffs=True)

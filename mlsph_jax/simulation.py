@@ -26,14 +26,18 @@ from .eos import get_eos, to_primitive
 from .errors import NeighborOverflowError, SimulationError
 from .integrate import MOOD_STATS, Carry, Status, StepControl, initial_carry, make_chunk, static_geometry
 from .scheme import Scheme
-from .state import Domain, Params, Particles
+from .state import Domain, Kind, Params, Particles
 
 
 @dataclasses.dataclass
 class Problem:
     """A ready-to-run simulation: initial particles, parameters, scheme, domain and end time,
     plus the case's metrics (``metrics(particles, t, params) -> dict``) and plotting hook
-    (``plot(out_dir, particles, t, params)``)."""
+    (``plot(out_dir, particles, t, params)``), an optional ``boundary`` (ghost regeneration,
+    :class:`mlsph_jax.boundaries.MirrorWalls`), ``diagnostics(particles, t, params) -> dict``
+    recorded at every output time (the ``timeseries`` of the summary and ``timeseries.csv``) and
+    ``steady_tol``: when > 0 the run stops early once the velocity changes by less than
+    ``steady_tol`` (relative to its maximum, per unit of time) between two output times."""
 
     case: str
     particles: Particles
@@ -45,6 +49,9 @@ class Problem:
     plot: Callable[[Path, Particles, float, Params], None] | None = None
     config: Mapping | None = None
     description: str = ""
+    boundary: object | None = None
+    diagnostics: Callable[[Particles, float, Params], Mapping[str, float]] | None = None
+    steady_tol: float = 0.0
 
 
 @dataclasses.dataclass
@@ -67,8 +74,8 @@ def snapshot_fields(p: Particles, params: Params, scheme: Scheme) -> dict[str, n
 
 
 def conserved_totals(p: Particles) -> np.ndarray:
-    """sum_i V_i U_i over fluid and frozen particles (everything that carries state)."""
-    return np.asarray(jnp.sum(p.q, axis=0))
+    """sum_i V_i U_i over fluid and frozen particles (ghosts are images, not carriers)."""
+    return np.asarray(jnp.sum(jnp.where((p.kind != Kind.GHOST)[:, None], p.q, 0.0), axis=0))
 
 
 MAX_REGROWTHS = 8
@@ -78,9 +85,10 @@ class Simulation:
     """Runs a :class:`Problem` with SSP-RK3 in jitted chunks (one compilation per case)."""
 
     def __init__(self, problem: Problem, *, cfl: float = 0.3, dt: float = 0.0, chunk: int = 50,
-                 max_steps: int = 1_000_000, dt_min: float = 1e-14, headroom: float = 1.3):
+                 max_steps: int = 1_000_000, dt_min: float = 1e-14, headroom: float = 1.3,
+                 cfl_viscous: float = 0.125):
         self.problem = problem
-        self.control = StepControl(cfl=cfl, dt_fixed=dt, dt_min=dt_min * problem.t_end)
+        self.control = StepControl(cfl=cfl, cfl_viscous=cfl_viscous, dt_fixed=dt, dt_min=dt_min * problem.t_end)
         self.chunk_steps = int(chunk)
         self.max_steps = int(max_steps)
         self.headroom = headroom
@@ -98,7 +106,7 @@ class Simulation:
     def _build(self):
         pb = self.problem
         self._chunk = make_chunk(pb.scheme, pb.domain, self.control, self.chunk_steps,
-                                 nspec=self.nspec if pb.scheme.moving else None)
+                                 nspec=self.nspec if pb.scheme.moving else None, boundary=pb.boundary)
         self._compiled = None
 
     def _geom(self, p: Particles):
@@ -121,6 +129,11 @@ class Simulation:
             writer.write(0.0, snapshot_fields(pb.particles, pb.params, pb.scheme), attrs={"step": 0})
         targets = list(np.linspace(0.0, pb.t_end, snapshots + 1)[1:])
         targets[-1] = pb.t_end
+        series = []
+        if pb.diagnostics is not None:
+            series.append({"t": 0.0, **pb.diagnostics(pb.particles, 0.0, pb.params)})
+        steady = None
+        vel_prev, t_prev = _velocity(pb.particles), 0.0
 
         t_wall0 = time.perf_counter()
         geom = self._geom(carry.particles)
@@ -159,6 +172,18 @@ class Simulation:
                 if writer:
                     writer.write(float(carry.t), snapshot_fields(carry.particles, pb.params, pb.scheme),
                                  attrs={"step": int(carry.step)})
+                t = float(carry.t)
+                if pb.diagnostics is not None:
+                    series.append({"t": t, **pb.diagnostics(carry.particles, t, pb.params)})
+                if pb.steady_tol > 0:
+                    vel = _velocity(carry.particles)
+                    scale = max(float(np.abs(vel).max()), 1e-300)
+                    rate = float(np.abs(vel - vel_prev).max()) / scale / max(t - t_prev, 1e-300)
+                    vel_prev, t_prev = vel, t
+                    if rate < pb.steady_tol:
+                        steady = {"converged": True, "t": t, "residual": rate, "tolerance": pb.steady_tol}
+                        break
+                    steady = {"converged": False, "t": t, "residual": rate, "tolerance": pb.steady_tol}
         finally:
             bar.close()
         wall = time.perf_counter() - t_wall0
@@ -176,6 +201,12 @@ class Simulation:
         )
         if pb.scheme.limiter == "mood":
             summary["mood"] = mood_summary(carry)
+        if series:
+            summary["timeseries"] = {k: [row[k] for row in series] for k in series[0]}
+            if out is not None:
+                io.write_timeseries(out, series)
+        if steady is not None:
+            summary["steady_state"] = steady
         if writer:
             writer.close()
             io.write_summary(out, summary)
@@ -227,6 +258,13 @@ class Simulation:
             f"simulation stopped: {st.describe()} in step {int(carry.step) + 1} starting at "
             f"t={float(carry.t):.6g}{where}; the last good state (t={float(carry.t):.6g}) is the "
             "final snapshot", step=int(carry.step) + 1, time=float(carry.t), particle=i if i >= 0 else None)
+
+
+def _velocity(p: Particles) -> np.ndarray:
+    """Fluid velocities (host copy) for the steady-state test."""
+    fluid = np.asarray(p.kind) == int(Kind.FLUID)
+    q = np.asarray(p.q)
+    return q[fluid, 1:1 + p.dim] / q[fluid, :1]
 
 
 def mood_summary(carry: Carry) -> dict[str, float]:
@@ -291,7 +329,8 @@ def run_problem(problem: Problem, cfg: Mapping | None = None, out_dir=None, quie
     ocfg = (cfg or {}).get("output", {})
     sim = Simulation(problem, cfl=tcfg.get("cfl", 0.3), dt=tcfg.get("dt", 0.0), chunk=tcfg.get("chunk", 50),
                      max_steps=tcfg.get("max_steps", 1_000_000), dt_min=tcfg.get("dt_min", 1e-14),
-                     headroom=(cfg or {}).get("scheme", {}).get("neighbor_headroom", 1.3))
+                     headroom=(cfg or {}).get("scheme", {}).get("neighbor_headroom", 1.3),
+                     cfl_viscous=tcfg.get("cfl_viscous", 0.125))
     return sim.run(out_dir, snapshots=ocfg.get("snapshots", 10), progress=ocfg.get("progress", True) and not quiet,
                    plots=ocfg.get("plots", True))
 

@@ -1,0 +1,157 @@
+"""Solid walls by mirror ghost particles (thesis §3.7.4-3.7.5, eq. 3.22; SPEC §8.2-8.3).
+
+Walls are axis-aligned planes ``x[axis] = position`` with the fluid on one ``side`` (+1: fluid
+at larger coordinates).  At setup (:func:`mirror_walls`, host side) every fluid particle within
+``band`` of a wall gets a GHOST particle, its mirror image across the wall; a particle within
+``band`` of two perpendicular walls also gets a corner ghost, mirrored across both (point
+mirror at the corner vertex).  Every Runge-Kutta stage (:meth:`MirrorWalls.apply`, inside jit)
+regenerates the ghosts from their parents:
+
+* position: mirrored parent position (ghosts follow moving parents);
+* volume, density and pressure (hence e): copied from the parent (zero normal gradient; SPEC
+  §8.2 [REC]);
+* velocity, no-slip:  u_G = 2 u_W - u_F (thesis eq. 3.22, Marrone et al. 2011), so the wall
+  velocity is the pair average; free-slip: the normal component is reversed, the tangential one
+  copied;
+* corner ghosts (thesis §3.7.5, Szewc et al. 2012): u_GC = 4 u_V - u_F - u_G1 - u_G2 with the two
+  wall ghosts u_Gk = 2 u_Wk - u_F and the vertex velocity u_V = (u_W1 + u_W2)/2 (SPEC §8.3
+  default: half the lid speed at the lid corners, zero at fixed corners), which gives
+  u_GC = u_F for no-slip walls.
+
+Wall velocities are the differentiable parameter ``boundary.wall_velocity[n_walls, d]`` (moving
+walls such as the Couette plate or the cavity lid).  The ghost set is fixed at setup: a particle
+that later moves into the band has no ghost, so mirror walls are meant for flows parallel to the
+walls or fixed (Eulerian) particles; ``ghost_band`` should cover the kernel support.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .eos import get_eos, to_conservative, to_primitive
+from .errors import InputError
+from .state import Kind, Params, Particles
+
+
+@dataclasses.dataclass(frozen=True)
+class Wall:
+    """An axis-aligned wall ``x[axis] = position``; the fluid is on ``side`` (+1 or -1)."""
+
+    axis: int
+    position: float
+    side: int
+    slip: bool = False
+
+    def __post_init__(self):
+        if self.side not in (1, -1):
+            raise InputError(f"invalid wall side={self.side!r}; allowed: +1 (fluid above) or -1 (fluid below)")
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class MirrorWalls:
+    """Ghost bookkeeping: ghost ``g`` (state index ``ghost[g]``) mirrors ``parent[g]`` across the
+    walls with ``walls[g, w] = True`` (one wall, or two for a corner ghost)."""
+
+    ghost: jax.Array      # [G] int
+    parent: jax.Array     # [G] int
+    walls: jax.Array      # [G, n_walls] bool
+    axis: jax.Array = dataclasses.field(metadata=dict(static=True))       # tuple of ints
+    position: jax.Array = dataclasses.field(metadata=dict(static=True))   # tuple of floats
+    slip: jax.Array = dataclasses.field(metadata=dict(static=True))       # tuple of bools
+    eos: str = dataclasses.field(metadata=dict(static=True), default="tait")
+
+    def apply(self, p: Particles, params: Params) -> Particles:
+        """Regenerate every ghost from its parent (positions, volumes, states)."""
+        eos = get_eos(self.eos)
+        d = p.x.shape[1]
+        W = self.walls.astype(p.x.dtype)                                     # [G, nw]
+        xF = p.x[self.parent]
+        UF = p.q[self.parent] / p.vol[self.parent][:, None]
+        prim = to_primitive(UF, eos, params)
+        uF = prim.vel
+        xG, uG = xF, uF
+        uW = params["boundary.wall_velocity"]                                # [nw, d]
+        n_mirror = jnp.sum(W, axis=1)
+        corner = n_mirror > 1
+        wall_sum = W @ uW                                                    # sum of mirrored walls' velocities
+        for w, (ax, pos, slip) in enumerate(zip(self.axis, self.position, self.slip, strict=True)):
+            on = self.walls[:, w]
+            xG = xG.at[:, ax].set(jnp.where(on, 2.0 * pos - xG[:, ax], xG[:, ax]))
+            if slip:  # reverse the normal component (relative to the wall)
+                un = uF[:, ax] - uW[w, ax]
+                uG = uG.at[:, ax].set(jnp.where(on & ~corner, uW[w, ax] - un, uG[:, ax]))
+        no_slip = jnp.asarray([not s for s in self.slip])
+        ns_single = (~corner) & jnp.any(self.walls & no_slip[None, :], axis=1)
+        uG = jnp.where(ns_single[:, None], 2.0 * wall_sum - uF, uG)
+        # corner: u_GC = 4 u_V - u_F - (2 u_W1 - u_F) - (2 u_W2 - u_F), u_V = (u_W1 + u_W2)/2
+        uG = jnp.where(corner[:, None], 4.0 * 0.5 * wall_sum + uF - 2.0 * wall_sum, uG)
+        UG = to_conservative(prim.rho, uG, prim.p, eos, params)
+        volG = p.vol[self.parent]
+        x = p.x.at[self.ghost].set(xG[:, :d])
+        vol = p.vol.at[self.ghost].set(volG)
+        q = p.q.at[self.ghost].set(volG[:, None] * UG)
+        return p.replace(x=x, vol=vol, q=q)
+
+
+def mirror_walls(x_fluid: np.ndarray, walls: list[Wall], band: float, first_index: int, eos: str):
+    """Ghost positions and bookkeeping for ``walls`` (host side, at setup).
+
+    Returns ``(MirrorWalls, parent indices [G])``; ghost ``g`` gets state index
+    ``first_index + g``.  ``band``: distance from a wall within which fluid particles are
+    mirrored (at least the kernel support radius).
+    """
+    x = np.asarray(x_fluid, float)
+    n, d = x.shape
+    if not walls:
+        raise InputError("invalid walls=[]; allowed: at least one Wall")
+    for w in walls:
+        if not 0 <= w.axis < d:
+            raise InputError(f"invalid wall axis={w.axis}; allowed: 0..{d - 1}")
+    dist = np.stack([(x[:, w.axis] - w.position) * w.side for w in walls], axis=1)   # [N, nw]
+    if np.any(dist <= 0):
+        i, k = np.argwhere(dist <= 0)[0]
+        raise InputError(f"invalid layout: fluid particle {i} at {x[i].tolist()} is not on the fluid side of "
+                         f"wall {k} (axis {walls[k].axis}, position {walls[k].position}); allowed: strictly inside")
+    near = dist < band
+    parents, masks = [], []
+    nw = len(walls)
+    for k in range(nw):
+        idx = np.flatnonzero(near[:, k])
+        parents.append(idx)
+        m = np.zeros((idx.size, nw), bool)
+        m[:, k] = True
+        masks.append(m)
+    for a in range(nw):
+        for b in range(a + 1, nw):
+            if walls[a].axis == walls[b].axis:
+                continue
+            idx = np.flatnonzero(near[:, a] & near[:, b])
+            parents.append(idx)
+            m = np.zeros((idx.size, nw), bool)
+            m[:, a] = m[:, b] = True
+            masks.append(m)
+    parent = np.concatenate(parents).astype(np.int32)
+    mask = np.concatenate(masks, axis=0)
+    g = parent.size
+    mw = MirrorWalls(ghost=jnp.arange(first_index, first_index + g, dtype=jnp.int32), parent=jnp.asarray(parent),
+                     walls=jnp.asarray(mask), axis=tuple(w.axis for w in walls),
+                     position=tuple(float(w.position) for w in walls), slip=tuple(bool(w.slip) for w in walls),
+                     eos=eos)
+    return mw, parent
+
+
+def with_ghosts(p_fluid: Particles, walls: list[Wall], band: float, params: Params, eos: str):
+    """Append the ghosts of ``walls`` to the particle set (kind GHOST) and fill them in."""
+    mw, parent = mirror_walls(np.asarray(p_fluid.x), walls, band, p_fluid.n, eos)
+    g = parent.size
+    cat = lambda a, b: jnp.concatenate([a, b], axis=0)  # noqa: E731
+    p = p_fluid.replace(x=cat(p_fluid.x, p_fluid.x[parent]), vol=cat(p_fluid.vol, p_fluid.vol[parent]),
+                        q=cat(p_fluid.q, p_fluid.q[parent]),
+                        kind=cat(p_fluid.kind, jnp.full(g, int(Kind.GHOST), p_fluid.kind.dtype)),
+                        ppd=cat(p_fluid.ppd, p_fluid.ppd[parent]))
+    return mw.apply(p, params), mw
