@@ -19,4 +19,5 @@ def build_problem(cfg: Mapping):
     return CASES.get(cfg["case"]["name"], "case.name")(cfg)
 
 
+from . import blast_2d  # noqa: E402,F401,I001  (registers the case)
 from . import riemann_1d  # noqa: E402,F401  (registers the case)
