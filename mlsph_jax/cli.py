@@ -3,6 +3,8 @@
     mlsph run [CONFIG] [--out DIR] [--set KEY=VALUE ...] [--quiet]
     mlsph validate CONFIG [--set KEY=VALUE ...]
     mlsph cases
+    mlsph sensitivity CONFIG --wrt KEY [KEY ...] --of METRIC [--check-fd] [--out DIR] [--set ...]
+    mlsph calibrate CONFIG --fit KEY [KEY ...] --target FILE.csv [--steps N] [--lr X] [--out DIR] [--set ...]
     mlsph --version
 
 ``run`` without CONFIG runs the default case (Sod's shock tube, 200 particles, under a minute on
@@ -61,6 +63,27 @@ def _parser() -> argparse.ArgumentParser:
     v.add_argument("config")
     v.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", action="extend")
     sub.add_parser("cases", help="list the built-in cases and configs")
+    diff_opts = argparse.ArgumentParser(add_help=False)
+    diff_opts.add_argument("config")
+    diff_opts.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", action="extend")
+    diff_opts.add_argument("--out", help="output folder (default: out/<config name>_<command>)")
+    diff_opts.add_argument("--n-steps", type=int, default=None,
+                           help="fixed number of SSP-RK3 steps (default: from the initial CFL step)")
+    diff_opts.add_argument("--record-every", type=int, default=1, help="steps between recorded diagnostics")
+    diff_opts.add_argument("--checkpoint", default="nested", choices=("none", "step", "nested"),
+                           help="reverse-mode memory strategy (mlsph_jax.differentiable)")
+    s_ = sub.add_parser("sensitivity", parents=[diff_opts],
+                        help="d METRIC / d parameter of a whole run (reverse-mode autodiff)")
+    s_.add_argument("--wrt", nargs="+", required=True, metavar="KEY", help="parameters, e.g. physics.mu eos.c0")
+    s_.add_argument("--of", required=True, metavar="METRIC",
+                    help="objective, e.g. ke_final (an unknown name lists them)")
+    s_.add_argument("--check-fd", action="store_true", help="compare with central finite differences")
+    s_.add_argument("--fd-rel", type=float, default=1e-5, help="relative finite-difference step")
+    c_ = sub.add_parser("calibrate", parents=[diff_opts], help="fit parameters to observed time series (optax)")
+    c_.add_argument("--fit", nargs="+", required=True, metavar="KEY", help="parameters to fit, e.g. physics.mu")
+    c_.add_argument("--target", required=True, help="CSV with a t column and diagnostic columns (e.g. ke)")
+    c_.add_argument("--steps", type=int, default=50, help="optimiser iterations")
+    c_.add_argument("--lr", type=float, default=0.05, help="Adam learning rate (on relative parameter changes)")
     return p
 
 
@@ -125,10 +148,60 @@ def cmd_cases(args) -> int:
     return 0
 
 
+def _diff_kw(args) -> dict:
+    return {"n_steps": args.n_steps, "record_every": args.record_every, "checkpoint": args.checkpoint}
+
+
+def cmd_sensitivity(args) -> int:
+    import json
+
+    from .cases import build_problem
+    from .sensitivity import sensitivity
+
+    cfg, stem = _load(args.config, args.set)
+    problem = build_problem(cfg)
+    t0 = time.perf_counter()
+    res = sensitivity(problem, args.wrt, args.of, check_fd=args.check_fd, fd_rel=args.fd_rel, **_diff_kw(args))
+    res["wall_time_s"] = time.perf_counter() - t0
+    print(f"{args.of} = {res['value']:.10g} after {res['n_steps']} steps of dt = {res['dt']:.4g}")
+    for k, e in res["gradients"].items():
+        line = f"  d {args.of} / d {k} = {e['gradient']}"
+        if args.check_fd:
+            line += (f"   (finite differences {e['fd']}, step {e['fd_step']}, "
+                     f"relative disagreement {e['rel_disagreement']})")
+        print(line)
+    out = Path(args.out) if args.out else Path("out") / f"{stem}_sensitivity"
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "sensitivity.json").write_text(json.dumps(res, indent=2))
+    print(f"wrote {out / 'sensitivity.json'} ({res['wall_time_s']:.1f} s)")
+    return 0
+
+
+def cmd_calibrate(args) -> int:
+    from .cases import build_problem
+    from .sensitivity import calibrate, read_target, write_calibration
+
+    cfg, stem = _load(args.config, args.set)
+    problem = build_problem(cfg)
+    target = read_target(args.target)
+
+    def show(h):
+        ps = ", ".join(f"{k} = {v}" for k, v in h["params"].items())
+        print(f"iteration {h['iteration']:4d}  loss {h['loss']:.6e}  {ps}", flush=True)
+
+    res = calibrate(problem, args.fit, target, steps=args.steps, lr=args.lr, progress=False, callback=show,
+                    **_diff_kw(args))
+    out = Path(args.out) if args.out else Path("out") / f"{stem}_calibration"
+    write_calibration(out, res)
+    print(f"fitted {res['final']} (loss {res['loss']:.3e}); wrote {out / 'history.json'} and {out / 'calibration.png'}")
+    return 0
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
-        return {"run": cmd_run, "validate": cmd_validate, "cases": cmd_cases}[args.command](args)
+        return {"run": cmd_run, "validate": cmd_validate, "cases": cmd_cases, "sensitivity": cmd_sensitivity,
+                "calibrate": cmd_calibrate}[args.command](args)
     except (ConfigError, InputError) as e:
         print(f"mlsph: error: {e}", file=sys.stderr)
         return 2

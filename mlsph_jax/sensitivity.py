@@ -1,0 +1,220 @@
+"""Sensitivities and calibration of whole simulations (``mlsph sensitivity`` / ``mlsph calibrate``).
+
+Objectives (``--of``) are differentiable scalars of a run made by
+:func:`mlsph_jax.differentiable.make_simulate`:
+
+* ``<diagnostic>_final`` and ``<diagnostic>_mean`` for every recorded diagnostic (``ke``,
+  ``mass``, ``momentum_x``, ... and the case's own, see :func:`objective_names`);
+* the case's differentiable metrics (``Problem.differentiable_metrics(particles, t, params)``),
+  e.g. ``ke_rel_error`` for Taylor-Green.
+
+:func:`sensitivity` returns d objective / d parameter for the requested parameters (dotted keys
+of the parameter pytree, e.g. ``physics.mu``, ``eos.c0``, ``boundary.wall_velocity``) and, with
+``check_fd``, central finite differences with the step used and the relative disagreement.
+
+:func:`calibrate` fits parameters to observed time series (a CSV with a ``t`` column and columns
+named after diagnostics) with optax Adam on relative coordinates theta = theta_0 (1 + s), so one
+learning rate suits parameters of any magnitude.  Loss: the mean over columns of the mean squared
+misfit at the observed times (the simulated series linearly interpolated), each column divided by
+the mean square of its observations.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .differentiable import check_overflow, make_simulate, param_paths, with_param
+from .errors import InputError
+from .state import Params
+
+
+def _simulate_for(problem, **kw):
+    return make_simulate(problem, **kw)
+
+
+def objective_names(problem, simulate) -> list[str]:
+    """Objectives ``--of`` accepts for ``problem``."""
+    out = jax.eval_shape(simulate, problem.params, problem.particles)
+    names = [f"{k}_{s}" for k in out.series for s in ("final", "mean")]
+    dm = getattr(problem, "differentiable_metrics", None)
+    if dm is not None:
+        names += list(jax.eval_shape(lambda p: dm(p, 0.0, problem.params), problem.particles))
+    return names
+
+
+def make_objective(problem, simulate, of: str):
+    """``f(params) -> (scalar, SimOutput)`` for the objective named ``of``."""
+    names = objective_names(problem, simulate)
+    if of not in names:
+        raise InputError(f"invalid --of {of!r}; allowed: {', '.join(names)}")
+    dm = getattr(problem, "differentiable_metrics", None)
+    t_end = simulate.n_steps * simulate.dt
+
+    def f(params):
+        out = simulate(params, problem.particles)
+        if of.endswith("_final") and of[:-6] in out.series:
+            val = out.series[of[:-6]][-1]
+        elif of.endswith("_mean") and of[:-5] in out.series:
+            val = jnp.mean(out.series[of[:-5]])
+        else:
+            val = dm(out.particles, t_end, params)[of]
+        return val, out
+
+    return f
+
+
+def _check_wrt(params: Params, wrt: Sequence[str]):
+    allowed = param_paths(params)
+    for k in wrt:
+        if k not in allowed:
+            raise InputError(f"invalid --wrt {k!r}; allowed: {', '.join(allowed)}")
+
+
+def sensitivity(problem, wrt: Sequence[str], of: str, check_fd: bool = False, fd_rel: float = 1e-5,
+                **simulate_kw) -> dict:
+    """Gradient of objective ``of`` with respect to each parameter in ``wrt`` (module doc)."""
+    _check_wrt(problem.params, wrt)
+    simulate = _simulate_for(problem, **simulate_kw)
+    f = make_objective(problem, simulate, of)
+    theta = {k: jnp.asarray(problem.params[k], jnp.float64) for k in wrt}
+
+    def g(th):
+        p = problem.params
+        for k, v in th.items():
+            p = with_param(p, k, v)
+        return f(p)
+
+    (value, out), grads = jax.jit(jax.value_and_grad(g, has_aux=True))(theta)
+    check_overflow(out)
+    result = {"objective": of, "value": float(value), "n_steps": simulate.n_steps, "dt": simulate.dt,
+              "gradients": {}}
+    fj = jax.jit(lambda th: g(th)[0]) if check_fd else None
+    for k in wrt:
+        gk = np.asarray(grads[k])
+        entry = {"value": np.asarray(theta[k]).tolist(), "gradient": gk.tolist()}
+        if check_fd:
+            base = np.asarray(theta[k], float)
+            flat = base.reshape(-1)
+            fd, steps = np.zeros_like(flat), np.zeros_like(flat)
+            for i in range(flat.size):
+                h = fd_rel * (abs(flat[i]) if flat[i] != 0 else 1.0)
+                up, dn = flat.copy(), flat.copy()
+                up[i] += h
+                dn[i] -= h
+                f_up = float(fj({**theta, k: jnp.asarray(up.reshape(base.shape))}))
+                f_dn = float(fj({**theta, k: jnp.asarray(dn.reshape(base.shape))}))
+                fd[i], steps[i] = (f_up - f_dn) / (2 * h), h
+            fd, steps = fd.reshape(base.shape), steps.reshape(base.shape)
+            rel = np.abs(gk - fd) / np.maximum(np.maximum(np.abs(gk), np.abs(fd)), 1e-300)
+            entry.update(fd=fd.tolist(), fd_step=steps.tolist(), rel_disagreement=rel.tolist())
+        result["gradients"][k] = entry
+    return result
+
+
+def read_target(path: str | Path) -> dict[str, np.ndarray]:
+    """Observed time series: a CSV with a header row, a ``t`` column and diagnostic columns."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"invalid --target {str(path)!r}: the file does not exist")
+    with path.open() as fh:
+        rows = list(csv.reader(fh))
+    if len(rows) < 2 or "t" not in rows[0]:
+        raise InputError(f"invalid --target {str(path)!r}: needs a header with a 't' column and at least one row")
+    head = [h.strip() for h in rows[0]]
+    try:
+        data = np.asarray([[float(v) for v in r] for r in rows[1:] if r], float)
+    except ValueError as e:
+        raise InputError(f"invalid --target {str(path)!r}: non-numeric value ({e})") from None
+    return {h: data[:, i] for i, h in enumerate(head)}
+
+
+def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], steps: int = 50, lr: float = 0.05,
+              progress: bool = True, callback=None, **simulate_kw) -> dict:
+    """Fit ``fit`` parameters to ``target`` series with optax Adam (module docstring)."""
+    import optax
+
+    _check_wrt(problem.params, fit)
+    simulate = _simulate_for(problem, **simulate_kw)
+    cols = [c for c in target if c != "t"]
+    shape = jax.eval_shape(simulate, problem.params, problem.particles)
+    bad = [c for c in cols if c not in shape.series]
+    if bad or not cols:
+        raise InputError(f"invalid target columns {bad or cols}; allowed: t and {', '.join(shape.series)}")
+    t_obs = jnp.asarray(target["t"])
+    obs = {c: jnp.asarray(target[c]) for c in cols}
+    scale = {c: jnp.maximum(jnp.mean(obs[c] ** 2), 1e-300) for c in cols}
+    theta0 = {k: jnp.asarray(problem.params[k], jnp.float64) for k in fit}
+
+    def loss(s):
+        p = problem.params
+        for k in fit:
+            p = with_param(p, k, theta0[k] * (1.0 + s[k]))
+        out = simulate(p, problem.particles)
+        terms = [jnp.mean((jnp.interp(t_obs, out.times, out.series[c]) - obs[c]) ** 2) / scale[c] for c in cols]
+        return sum(terms) / len(terms), out
+
+    vg = jax.jit(jax.value_and_grad(loss, has_aux=True))
+    opt = optax.adam(lr)
+    s = {k: jnp.zeros_like(v) for k, v in theta0.items()}
+    state = opt.init(s)
+    history = []
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=steps, unit="it")
+    out = None
+    for it in range(steps + 1):
+        (val, out), g = vg(s)
+        check_overflow(out)
+        current = {k: (theta0[k] * (1.0 + s[k])).tolist() for k in fit}
+        history.append({"iteration": it, "loss": float(val), "params": current})
+        if callback is not None:
+            callback(history[-1])
+        if bar is not None:
+            bar.set_postfix(loss=f"{float(val):.3e}", **{k: f"{np.ravel(v)[0]:.6g}" for k, v in current.items()})
+            if it:
+                bar.update(1)
+        if it == steps:
+            break
+        upd, state = opt.update(g, state, s)
+        s = optax.apply_updates(s, upd)
+    if bar is not None:
+        bar.close()
+    return {"fit": list(fit), "history": history, "final": history[-1]["params"], "loss": history[-1]["loss"],
+            "series": {c: np.asarray(out.series[c]).tolist() for c in cols}, "times": np.asarray(out.times).tolist(),
+            "target": {k: np.asarray(v).tolist() for k, v in target.items()}}
+
+
+def write_calibration(out_dir: str | Path, result: Mapping) -> None:
+    """history.json and calibration.png (loss per iteration, fitted vs observed series)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "history.json").write_text(json.dumps(result, indent=2))
+    cols = list(result["series"])
+    fig, axes = plt.subplots(1, 1 + len(cols), figsize=(4.5 * (1 + len(cols)), 3.4))
+    axes = np.atleast_1d(axes)
+    axes[0].semilogy([h["loss"] for h in result["history"]], "k.-")
+    axes[0].set_xlabel("iteration")
+    axes[0].set_title("loss")
+    for ax, c in zip(axes[1:], cols, strict=True):
+        ax.plot(result["target"]["t"], result["target"][c], "o", mfc="none", label="target")
+        ax.plot(result["times"], result["series"][c], "-", label="fitted run")
+        ax.set_xlabel("t")
+        ax.set_title(c)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "calibration.png", dpi=110)
+    plt.close(fig)
