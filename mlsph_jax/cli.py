@@ -84,6 +84,7 @@ def _parser() -> argparse.ArgumentParser:
     c_.add_argument("--target", required=True, help="CSV with a t column and diagnostic columns (e.g. ke)")
     c_.add_argument("--steps", type=int, default=50, help="optimiser iterations")
     c_.add_argument("--lr", type=float, default=0.05, help="Adam learning rate (on relative parameter changes)")
+    c_.add_argument("--optimizer", default="lbfgs", choices=("lbfgs", "adam"), help="optax optimiser")
     return p
 
 
@@ -190,7 +191,7 @@ def cmd_calibrate(args) -> int:
         print(f"iteration {h['iteration']:4d}  loss {h['loss']:.6e}  {ps}", flush=True)
 
     res = calibrate(problem, args.fit, target, steps=args.steps, lr=args.lr, progress=False, callback=show,
-                    **_diff_kw(args))
+                    optimizer=args.optimizer, **_diff_kw(args))
     out = Path(args.out) if args.out else Path("out") / f"{stem}_calibration"
     write_calibration(out, res)
     print(f"fitted {res['final']} (loss {res['loss']:.3e}); wrote {out / 'history.json'} and {out / 'calibration.png'}")

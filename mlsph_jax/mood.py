@@ -18,7 +18,9 @@ E = z + dt L(z) of the stage input z followed by the Shu-Osher combination a y^n
      delta = max(delta_abs, delta_rel (max_S - min_S)) (eq. 3.13).  The printed floor delta_abs
      = 1e-4 is absolute, i.e. in Pa for a pressure of 1e9 Pa, where round-off alone exceeds it
      and flat regions get flagged; by default (``mood_delta_floor = "scaled"``, SPEC item 21)
-     the floor is delta_abs max_S |phi|, ``"absolute"`` keeps the printed form;
+     the floor is delta_abs max_i |phi_i| (the variable's magnitude over all particles, so it
+     is unit-free and not zero where a Tait pressure passes through 0), ``"absolute"`` keeps
+     the printed form;
 4. flagged particles drop to degree 0 (the parachute: first-order states U_i, U_j, which
    passes the detectors by construction) and the candidate is recomputed;
 5. 3-4 repeat until no new particle is flagged, at most ``mood_max_iter`` times.
@@ -101,8 +103,8 @@ def detect(U_cand, bounds, scheme: Scheme, params: Params):
     if scheme.mood_nad:
         lo, hi = bounds
         floor = scheme.mood_delta_abs
-        if scheme.mood_delta_floor == "scaled":
-            floor = floor * jnp.maximum(jnp.abs(lo), jnp.abs(hi))
+        if scheme.mood_delta_floor == "scaled":   # magnitude of each variable over all particles
+            floor = floor * jnp.max(jnp.maximum(jnp.abs(lo), jnp.abs(hi)), axis=0)
         delta = jnp.maximum(floor, scheme.mood_delta_rel * (hi - lo))
         phi = nad_fields(U_cand, scheme, params)
         out = (phi < lo - delta) | (phi > hi + delta) | ~jnp.isfinite(phi)

@@ -72,7 +72,7 @@ def test_nad_relaxed_maximum_principle():
                            get_eos("ideal_gas"), GAS)
     assert detect(cand, (lo, hi), scheme, GAS).tolist() == [False, True, True]
     flat = dataclasses.replace(scheme, mood_delta_rel=0.0, mood_delta_abs=0.0)
-    # the default floor is scaled by the stencil magnitude: 1e-4 * 3 = 3e-4 < 1e-3 here
+    # the default floor is scaled by the largest magnitude: 1e-4 * 3 = 3e-4 < 1e-3 here
     assert dataclasses.replace(scheme, mood_delta_floor="absolute").mood_delta_floor == "absolute"
     assert detect(cand, (lo, hi), flat, GAS).tolist() == [True, True, True]
 
