@@ -37,7 +37,10 @@ class Problem:
     :class:`mlsph_jax.boundaries.MirrorWalls`), ``diagnostics(particles, t, params) -> dict``
     recorded at every output time (the ``timeseries`` of the summary and ``timeseries.csv``) and
     ``steady_tol``: when > 0 the run stops early once the velocity changes by less than
-    ``steady_tol`` (relative to its maximum, per unit of time) between two output times."""
+    ``steady_tol`` (relative to its maximum, per unit of time) between two output times.
+    ``differentiable_diagnostics`` / ``differentiable_metrics``: jnp versions recorded by
+    :func:`mlsph_jax.differentiable.make_simulate` (time series) and offered as objectives by
+    :mod:`mlsph_jax.sensitivity`."""
 
     case: str
     particles: Particles
@@ -52,6 +55,8 @@ class Problem:
     boundary: object | None = None
     diagnostics: Callable[[Particles, float, Params], Mapping[str, float]] | None = None
     steady_tol: float = 0.0
+    differentiable_diagnostics: Callable[[Particles, float, Params], Mapping] | None = None
+    differentiable_metrics: Callable[[Particles, float, Params], Mapping] | None = None
 
 
 @dataclasses.dataclass

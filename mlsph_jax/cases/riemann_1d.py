@@ -73,8 +73,20 @@ def build(cfg: Mapping) -> Problem:
     def plot(out: Path, p: Particles, t: float, P) -> None:
         plot_profiles(out / "profiles.png", p, t, P, exact, scheme.eos, title=_title(cfg))
 
+    rho_r = float(c["right"]["rho"])
+    x0 = float(c["x_interface"])
+
+    def shock_position(p: Particles, t, P) -> dict:
+        """Differentiable front position of a right-moving shock (thesis R1): x0 + sum over fluid
+        particles right of x0 of V (rho - rho_R) / (max rho there - rho_R), exact for a step
+        of any height from x0 to the shock."""
+        fluid = (p.kind == Kind.FLUID) & (p.x[:, 0] > x0)
+        rho = p.q[:, 0] / p.vol
+        excess = jnp.where(fluid, rho - rho_r, 0.0)
+        return {"shock_position": x0 + jnp.sum(p.vol * excess) / jnp.max(excess)}
+
     return Problem("riemann_1d", particles, params, scheme, domain, cfg["time"]["t_end"], metrics, plot,
-                   config=cfg, description=_title(cfg))
+                   config=cfg, description=_title(cfg), differentiable_diagnostics=shock_position)
 
 
 def _title(cfg) -> str:
