@@ -1,0 +1,107 @@
+"""Forward time, reverse-mode time and peak memory of a whole-run gradient (Taylor-Green, Re = 100,
+Eulerian MLSPH-ALE degree 2), with and without checkpointing (:mod:`mlsph_jax.differentiable`).
+Not a test.
+
+Each configuration (particles per side n, steps, checkpoint = none | step | nested) runs in a fresh
+subprocess, which (1) compiles and times the forward run ``simulate`` (ke at the end), (2) compiles
+and times ``jax.grad`` of it with respect to physics.mu, and reports its peak resident memory
+(``ru_maxrss`` of the child, i.e. the high-water mark of the whole process, compile included).
+Prints a table and writes experiments/output/bench_gradients.json.
+
+    python experiments/bench_gradients.py [--sizes 50 100] [--steps 1000] [--checkpoints none step nested]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def child(n: int, steps: int, checkpoint: str) -> dict:
+    import jax
+
+    from mlsph_jax import config
+    from mlsph_jax.cases import build_problem
+    from mlsph_jax.differentiable import make_simulate, with_param
+
+    cfg = config.load(ROOT / "configs/taylor_green_2d.toml", [f"case.n={n}", "time.t_end=0.2"])
+    pb = build_problem(cfg)
+    sim = make_simulate(pb, n_steps=steps, checkpoint=checkpoint, record_every=steps)
+
+    def f(mu):
+        return sim(with_param(pb.params, "physics.mu", mu), pb.particles).series["ke"][-1]
+
+    mu = float(pb.params["physics.mu"])
+    out = {"n_particles": n * n, "steps": steps, "checkpoint": checkpoint}
+    fwd = jax.jit(f)
+    t0 = time.perf_counter()
+    c = fwd.lower(mu).compile()
+    out["forward_compile_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    jax.block_until_ready(c(mu))
+    out["forward_s"] = time.perf_counter() - t0
+    rss_fwd = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    g = jax.jit(jax.grad(f))
+    t0 = time.perf_counter()
+    cg = g.lower(mu).compile()
+    out["reverse_compile_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    out["gradient"] = float(jax.block_until_ready(cg(mu)))
+    out["reverse_s"] = time.perf_counter() - t0
+    out["peak_rss_forward_mb"] = rss_fwd
+    out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return out
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sizes", type=int, nargs="+", default=[50, 100], help="particles per side")
+    ap.add_argument("--steps", type=int, default=1000)
+    ap.add_argument("--checkpoints", nargs="+", default=["nested", "step", "none"])
+    ap.add_argument("--timeout", type=float, default=3600.0, help="seconds per configuration")
+    ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.child:
+        print(json.dumps(child(int(args.child[0]), int(args.child[1]), args.child[2])))
+        return
+    rows = []
+    print(f"{'N':>7} {'steps':>6} {'checkpoint':<10} {'fwd s':>8} {'rev s':>8} {'rev/fwd':>7} {'peak MB':>9} "
+          f"{'compile s':>9}")
+    for n in args.sizes:
+        for ck in args.checkpoints:
+            cmd = [sys.executable, __file__, "--child", str(n), str(args.steps), ck]
+            try:
+                r = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout)
+            except subprocess.TimeoutExpired:
+                rows.append({"n_particles": n * n, "steps": args.steps, "checkpoint": ck, "error": "timeout"})
+                print(f"{n * n:>7} {args.steps:>6} {ck:<10} timeout after {args.timeout:.0f} s")
+                continue
+            if r.returncode != 0:
+                err = (r.stderr.strip().splitlines() or ["?"])[-1][:160]
+                rows.append({"n_particles": n * n, "steps": args.steps, "checkpoint": ck, "error": err})
+                print(f"{n * n:>7} {args.steps:>6} {ck:<10} failed: {err}")
+                continue
+            row = json.loads(r.stdout.strip().splitlines()[-1])
+            rows.append(row)
+            print(f"{row['n_particles']:>7} {row['steps']:>6} {ck:<10} {row['forward_s']:>8.1f} {row['reverse_s']:>8.1f} "
+                  f"{row['reverse_s'] / row['forward_s']:>7.2f} {row['peak_rss_mb']:>9.0f} "
+                  f"{row['forward_compile_s'] + row['reverse_compile_s']:>9.1f}", flush=True)
+    dest = ROOT / "experiments" / "output" / "bench_gradients.json"
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    import jax
+
+    dest.write_text(json.dumps({"benchmark": "gradients", "jax": jax.__version__, "machine": platform.platform(),
+                                "results": rows}, indent=2))
+    print(f"wrote {dest}")
+
+
+if __name__ == "__main__":
+    main()
