@@ -91,7 +91,8 @@ def main():
                 continue
             row = json.loads(r.stdout.strip().splitlines()[-1])
             rows.append(row)
-            print(f"{row['n_particles']:>7} {row['steps']:>6} {ck:<10} {row['forward_s']:>8.1f} {row['reverse_s']:>8.1f} "
+            print(f"{row['n_particles']:>7} {row['steps']:>6} {ck:<10} {row['forward_s']:>8.1f} "
+                  f"{row['reverse_s']:>8.1f} "
                   f"{row['reverse_s'] / row['forward_s']:>7.2f} {row['peak_rss_mb']:>9.0f} "
                   f"{row['forward_compile_s'] + row['reverse_compile_s']:>9.1f}", flush=True)
     dest = ROOT / "experiments" / "output" / "bench_gradients.json"
