@@ -1182,5 +1182,200 @@ BLAST_2D = register_case_schema(
         "outside, compared with a 1-D radial finite-volume reference.")
 
 
+TAYLOR_GREEN_2D_LAYOUTS = ("cartesian", "perturbed")
+
+
+def check_taylor_green_2d(cfg: dict) -> None:
+    """`eos.kind` must be tait (the initial density inverts the Tait law at the exact pressure).
+    The viscosity follows from `re`: mu = eos.rho0 `u0` `length` / `re`; physics.mu must be left
+    at 0 (it is then set to that value) or equal it (relative difference <= 1e-9).
+    `physics.body_force` must be empty. The Tait law must be invertible at the lowest exact
+    pressure -rho0 u0^2/2: eos.gamma u0^2 / (2 eos.c0^2) < 1 (Mach number u0/c0 below
+    sqrt(2/gamma), 0.53 for gamma = 7)."""
+    c, eos, phys = cfg["case"], cfg["eos"], cfg["physics"]
+    problems = []
+    if eos["kind"] != "tait":
+        problems.append(f"invalid eos.kind={_show(eos['kind'])}: case taylor_green_2d sets the "
+                        "initial density from the Tait law at the exact pressure; allowed: \"tait\"")
+    else:
+        mu = eos["rho0"] * c["u0"] * c["length"] / c["re"]
+        if phys["mu"] != 0.0 and abs(phys["mu"] - mu) > 1e-9 * mu:
+            problems.append(f"invalid physics.mu={_show(phys['mu'])}: case taylor_green_2d derives "
+                            f"the viscosity from case.re={_show(c['re'])} (mu = eos.rho0 case.u0 "
+                            f"case.length / case.re = {mu:.10g}); allowed: 0 (derived) or "
+                            f"{mu:.10g} (set case.re instead)")
+        if eos["gamma"] * c["u0"] ** 2 / (2.0 * eos["c0"] ** 2) >= 1.0:
+            problems.append(f"invalid case.u0={_show(c['u0'])}: the Tait law cannot be inverted at "
+                            f"the lowest exact pressure -rho0 u0^2/2 with eos.c0={_show(eos['c0'])}; "
+                            f"allowed: u0 < c0 sqrt(2/gamma) = "
+                            f"{eos['c0'] * math.sqrt(2.0 / eos['gamma']):.6g}")
+    if phys["body_force"]:
+        problems.append(f"invalid physics.body_force={_show(phys['body_force'])}: the Taylor-Green "
+                        "vortex has no body force; allowed: []")
+    if problems:
+        raise ConfigError(_join(problems))
+
+
+TAYLOR_GREEN_2D_KEYS: dict[str, Key] = {
+    "n": Key(int, 50, minimum=8,
+             doc="particles per side (n^2 in total, spacing length/n); thesis §3.7.3: 100, "
+                 "§4.5.1: 50"),
+    "length": Key(float, 1.0, minimum=0.0, exclusive_minimum=True, unit="m",
+                  doc="side L of the periodic square [0, L]^2 (one period of the vortex pattern; "
+                      "thesis §3.7.3: 1, §4.5.1: 2 pi)"),
+    "u0": Key(float, 1.0, minimum=0.0, exclusive_minimum=True, unit="m/s",
+              doc="velocity amplitude U0 of the exact solution"),
+    "re": Key(float, 100.0, minimum=0.0, exclusive_minimum=True,
+              doc="Reynolds number Re = rho0 U0 L / mu (sets physics.mu = rho0 U0 L / Re); the "
+                  "kinetic energy decays as exp(-16 pi^2 t U0 / (Re L))"),
+    "layout": Key(str, "cartesian", choices=TAYLOR_GREEN_2D_LAYOUTS,
+                  doc="initial particles: Cartesian lattice (x = (i + 1/2) dx) or the lattice "
+                      "with random displacements"),
+    "perturbation": Key(float, 0.15, minimum=0.0, maximum=0.5, exclusive_maximum=True,
+                        doc="perturbed layout: each coordinate is displaced by a uniform random "
+                            "amount in [-perturbation dx, +perturbation dx] (volumes stay dx^2)"),
+    "seed": Key(int, 0, minimum=0, doc="random seed of the perturbed layout"),
+}
+
+TAYLOR_GREEN_2D = register_case_schema(
+    "taylor_green_2d", TAYLOR_GREEN_2D_KEYS, check=check_taylor_green_2d, dim=2,
+    defaults_override={"eos.kind": "tait", "eos.rho0": 1.0, "eos.c0": 10.0, "time.t_end": 1.0},
+    doc="Two-dimensional viscous Taylor-Green vortex (weakly compressible, Tait EOS, periodic "
+        "square [0, `length`]^2; thesis §3.7.3 and §4.5.1), compared with the exact incompressible "
+        "solution.")
+
+
+CHANNEL_CASES = ("couette", "poiseuille")
+
+
+def check_channel(cfg: dict) -> None:
+    """`eos.kind` must be tait and physics.mu > 0 (the exact start-up solution has nu =
+    physics.mu / eos.rho0). `physics.body_force` must be empty or [f_x, 0.0] (a force along the
+    plates; a wall-normal force would need a hydrostatic wall treatment). The flow must be
+    driven: `u_plate` != 0 or f_x != 0. The period `nx` dx must exceed the kernel support
+    diameter 2 kappa beta dx (minimum-image neighbour search), i.e. `nx` > 2 kappa beta (6 for
+    mlsph_ale with the cubic spline, 8 for sph_ale)."""
+    from .kernels import get_kernel
+
+    c, eos, phys = cfg["case"], cfg["eos"], cfg["physics"]
+    name = c["name"]
+    problems = []
+    if eos["kind"] != "tait":
+        problems.append(f"invalid eos.kind={_show(eos['kind'])}: case {name} compares with the "
+                        "incompressible start-up solution for the weakly compressible Tait fluid; "
+                        "allowed: \"tait\"")
+    if not phys["mu"] > 0.0:
+        problems.append(f"invalid physics.mu={_show(phys['mu'])}: case {name} is a viscous flow; "
+                        "allowed: a float > 0 (nu = mu / eos.rho0; thesis: 0.1)")
+    bf = phys["body_force"]
+    fx = bf[0] if bf else 0.0
+    if bf and bf[1] != 0.0:
+        problems.append(f"invalid physics.body_force={_show(bf)}: case {name} takes a force along "
+                        "the plates only; allowed: [] or [f_x, 0.0]")
+    if c["u_plate"] == 0.0 and fx == 0.0:
+        problems.append(f"invalid case.u_plate={_show(c['u_plate'])} with physics.body_force="
+                        f"{_show(bf)}: nothing drives the flow; allowed: u_plate != 0 (Couette) "
+                        "or physics.body_force = [f_x, 0.0] with f_x != 0 (Poiseuille)")
+    reach = 2.0 * get_kernel(cfg["scheme"]["kernel"]).support * effective_beta(cfg["scheme"])
+    if not c["nx"] > reach:
+        problems.append(f"invalid case.nx={c['nx']}: the period nx dx must exceed the kernel "
+                        f"support diameter {reach:g} dx; allowed: an int > {reach:g}")
+    if problems:
+        raise ConfigError(_join(problems))
+
+
+def _channel_keys(u_plate: float) -> dict[str, Key]:
+    return {
+        "gap": Key(float, 1.0, minimum=0.0, exclusive_minimum=True, unit="m",
+                   doc="distance L between the plates (walls at y = 0 and y = L); thesis: 1"),
+        "ny": Key(int, 40, minimum=4,
+                  doc="fluid particles across the gap (square lattice, spacing dx = gap/ny); "
+                      "thesis: 40"),
+        "nx": Key(int, 20, minimum=1,
+                  doc="fluid particles along the plates (periodic length nx dx); thesis: 20 "
+                      "(period L/2)"),
+        "u_plate": Key(float, u_plate, unit="m/s",
+                       doc="velocity of the top plate (y = L) along x, switched on at t = 0 "
+                           "(the bottom plate is fixed); thesis Couette: 1"),
+    }
+
+
+COUETTE = register_case_schema(
+    "couette", _channel_keys(1.0), check=check_channel, dim=2,
+    defaults_override={"eos.kind": "tait", "eos.rho0": 1.0, "eos.c0": 10.0, "physics.mu": 0.1,
+                       "time.t_end": 10.0, "output.snapshots": 20},
+    doc="Start-up Couette flow (thesis §3.7.4): fluid at rest between two plates `gap` apart, "
+        "the top plate impulsively set to `u_plate`; mirror-ghost walls, periodic along the "
+        "plates, compared with the exact series solution (thesis eq. 3.20).")
+
+POISEUILLE = register_case_schema(
+    "poiseuille", _channel_keys(0.0), check=check_channel, dim=2,
+    defaults_override={"eos.kind": "tait", "eos.rho0": 1.0, "eos.c0": 10.0, "physics.mu": 0.1,
+                       "physics.body_force": [0.8, 0.0], "time.t_end": 10.0, "output.snapshots": 20},
+    doc="Start-up Poiseuille flow (thesis §3.7.4): fluid at rest between two fixed plates "
+        "`gap` apart driven by the body force `physics.body_force` = [f_x, 0] (peak velocity "
+        "f_x L^2 / (8 nu)); mirror-ghost walls, periodic along the plates, compared with the "
+        "exact series solution (thesis eq. 3.21 with its sign corrected, SPEC §13 item 35).")
+
+
+def lid_driven_cavity_viscosity(cfg: Mapping) -> float:
+    """Dynamic viscosity of a resolved ``lid_driven_cavity`` config: mu = rho0 u_lid length / re."""
+    c = cfg["case"]
+    return cfg["eos"]["rho0"] * c["u_lid"] * c["length"] / c["re"]
+
+
+def check_lid_driven_cavity(cfg: dict) -> None:
+    """`eos.kind` must be tait. The viscosity follows from `re`: mu = eos.rho0 `u_lid`
+    `length` / `re`; physics.mu must be left at 0 (it is then set to that value) or equal it
+    (relative difference <= 1e-9). `physics.body_force` must be empty. `scheme.frame` must be
+    eulerian (the mirror ghosts are fixed at set-up, so the particles must not move)."""
+    c, eos, phys = cfg["case"], cfg["eos"], cfg["physics"]
+    problems = []
+    if eos["kind"] != "tait":
+        problems.append(f"invalid eos.kind={_show(eos['kind'])}: case lid_driven_cavity is a "
+                        "weakly compressible Tait flow; allowed: \"tait\"")
+    else:
+        mu = lid_driven_cavity_viscosity(cfg)
+        if phys["mu"] != 0.0 and abs(phys["mu"] - mu) > 1e-9 * mu:
+            problems.append(f"invalid physics.mu={_show(phys['mu'])}: case lid_driven_cavity derives "
+                            f"the viscosity from case.re={_show(c['re'])} (mu = eos.rho0 case.u_lid "
+                            f"case.length / case.re = {mu:.10g}); allowed: 0 (derived) or "
+                            f"{mu:.10g} — set case.re instead")
+    if phys["body_force"]:
+        problems.append(f"invalid physics.body_force={_show(phys['body_force'])}: the lid-driven "
+                        "cavity has no body force; allowed: []")
+    if cfg["scheme"]["frame"] != "eulerian":
+        problems.append(f"invalid scheme.frame={_show(cfg['scheme']['frame'])}: the cavity's "
+                        "mirror ghosts are fixed at set-up, so the particles must stay in place; "
+                        "allowed: \"eulerian\"")
+    if problems:
+        raise ConfigError(_join(problems))
+
+
+LID_DRIVEN_CAVITY_KEYS: dict[str, Key] = {
+    "n": Key(int, 40, minimum=8,
+             doc="fluid particles per side (n^2 in total, square lattice, spacing length/n); "
+                 "thesis: 100"),
+    "length": Key(float, 1.0, minimum=0.0, exclusive_minimum=True, unit="m",
+                  doc="side L of the square cavity [0, L]^2"),
+    "u_lid": Key(float, 1.0, minimum=0.0, exclusive_minimum=True, unit="m/s",
+                 doc="velocity of the lid (top wall y = L) along +x; the other walls are fixed"),
+    "re": Key(float, 100.0, minimum=0.0, exclusive_minimum=True,
+              doc="Reynolds number Re = rho0 u_lid L / mu (sets physics.mu); Ghia et al. "
+                  "(1982) centre-line data exist for 100, 400 and 1000"),
+    "steady_tol": Key(float, 2e-3, minimum=0.0,
+                      doc="stop early once max|u(t2) - u(t1)| / max|u| / (t2 - t1) between two "
+                          "output times is below this (1/s; 0 = always run to time.t_end)"),
+}
+
+LID_DRIVEN_CAVITY = register_case_schema(
+    "lid_driven_cavity", LID_DRIVEN_CAVITY_KEYS, check=check_lid_driven_cavity, dim=2,
+    defaults_override={"eos.kind": "tait", "eos.rho0": 1.0, "eos.c0": 10.0, "time.t_end": 15.0,
+                       "output.snapshots": 15},
+    doc="Two-dimensional lid-driven cavity (thesis §3.7.5): fluid at rest in the square [0, "
+        "`length`]^2, the lid moves at `u_lid`; mirror-ghost walls with corner ghosts, run to a "
+        "steady state and compared with Ghia et al. (1982) along the centre lines.")
+
+
 if __name__ == "__main__":  # pragma: no cover
     print(config_reference_markdown(), end="")

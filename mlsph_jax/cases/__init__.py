@@ -21,3 +21,6 @@ def build_problem(cfg: Mapping):
 
 from . import blast_2d  # noqa: E402,F401,I001  (registers the case)
 from . import riemann_1d  # noqa: E402,F401  (registers the case)
+from . import taylor_green_2d  # noqa: E402,F401,I001  (registers the case)
+from . import channel_flows  # noqa: E402,F401,I001  (registers the cases couette and poiseuille)
+from . import lid_driven_cavity  # noqa: E402,F401,I001  (registers the case)

@@ -1,0 +1,227 @@
+"""The ``lid_driven_cavity`` case (thesis §3.7.5, SPEC §12.1 V7, §8.3): Ghia reference data,
+config checks, walls and corner ghosts, centre-line interpolation, and a coarse Re = 100 run
+against Ghia et al. (1982).
+
+Measured at Re = 100 (Eulerian MLSPH-ALE, quadratic reconstruction, c0 = 10 u_lid, CFL 0.6),
+deviations from Ghia at the 15 interior points of each centre line (max / rms):
+
+    n x n     stopped at (steady_tol 2e-3)   u dev            v dev            u_min (Ghia -0.2109)
+    24 x 24   t = 6                          0.0702 / 0.0407  0.0670 / 0.0347  -0.2197
+    40 x 40   t = 8 (built-in config)        0.0451 / 0.0251  0.0324 / 0.0162  -0.2095
+    50 x 50   t = 8                          0.0341 / 0.0180  0.0190 / 0.0093  -0.2096
+    (50 x 50 continued to t = 20: u 0.0342 / 0.0177, v 0.0175 / 0.0085)
+
+The 24 x 24 state misses Ghia's Re = 400 profiles by 0.229 (u) / 0.293 (v) and the Re = 1000
+profiles by 0.306 / 0.400, and the fluid at rest misses the Re = 100 ones by 0.80 / 0.245, so
+the bounds below (~20 % above the measured 24 x 24 values) separate the Re = 100 solution from
+all of them.  (At 24 x 24 the simulated flow itself depends only weakly on Re: u_min = -0.2066,
+-0.2123, -0.2197, -0.2266, -0.2278 for Re = 10, 30, 100, 1000, 1e5 at t = 6 -- the centre lines
+at Re <= 100 are close to Stokes flow, and the scheme's numerical dissipation caps the effective
+Reynolds number at a few hundred on such coarse lattices; at 40 x 40, Re = 1000 departs clearly,
+u_min = -0.243 at t = 8 and still falling.)
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mlsph_jax import config
+from mlsph_jax.cases import build_problem
+from mlsph_jax.cases.lid_driven_cavity import cavity_metrics, mls_interpolate
+from mlsph_jax.errors import ConfigError, InputError
+from mlsph_jax.reference import ghia
+from mlsph_jax.simulation import run_problem
+from mlsph_jax.state import Kind
+
+CFG = "configs/lid_driven_cavity.toml"
+QUIET = ("output.progress=false", "output.plots=false")
+
+
+def _err(overrides, path=CFG) -> str:
+    with pytest.raises(ConfigError) as e:
+        config.load(path, list(overrides))
+    return str(e.value)
+
+
+# --- Ghia data ---------------------------------------------------------------------------------
+
+def test_ghia_table_matches_the_shared_reference_and_flags_the_misprint():
+    y, u = ghia.centerline("u", 100)
+    assert y.size == 17 and (y[0], y[-1], u[0], u[-1]) == (0.0, 1.0, 0.0, 1.0)
+    assert u[np.argmin(u)] == -0.21090 and y[np.argmin(u)] == 0.4531
+    x, v = ghia.centerline("v", 1000)
+    assert x.size == 17 and v[x == 0.9063][0] == -0.51550 and v[x == 0.5][0] == 0.02526
+    # the flagged misprint v(Re=400, x=0.9063) = -0.23827 is left out unless asked for
+    x4, v4 = ghia.centerline("v", 400)
+    assert x4.size == 16 and 0.9063 not in x4
+    xa, va = ghia.centerline("v", 400, include_misprint=True)
+    assert va[xa == 0.9063][0] == -0.23827 and v4[x4 == 0.5][0] == 0.05186
+    xi, _ = ghia.centerline("u", 400, include_walls=False)
+    assert xi.size == 15 and xi.min() > 0 and xi.max() < 1
+    # value for value identical to the project's shared reference files, when present
+    import pathlib
+
+    shared = pathlib.Path("/work/shared/reference")
+    if shared.is_dir():
+        for comp, fname in (("u", "ghia1982_u_vertical_centerline.csv"), ("v", "ghia1982_v_horizontal_centerline.csv")):
+            ref = np.loadtxt(shared / fname, delimiter=",", skiprows=1)
+            for k, re in enumerate(ghia.REYNOLDS):
+                c, val = ghia.centerline(comp, re, include_misprint=True)
+                np.testing.assert_array_equal(c, ref[:, 0])
+                np.testing.assert_array_equal(val, ref[:, 1 + k])
+
+
+def test_ghia_input_errors():
+    assert ghia.table_reynolds(400.0000001) == 400 and ghia.table_reynolds(3200) is None
+    with pytest.raises(InputError, match="component"):
+        ghia.centerline("w", 100)
+    with pytest.raises(InputError, match="re=250"):
+        ghia.centerline("u", 250)
+
+
+def test_mls_interpolation_reproduces_quadratics():
+    rng = np.random.default_rng(0)
+    xs = rng.uniform(-0.2, 1.2, (3000, 2))
+    f = lambda x: 1.0 + 2 * x[:, 0] - x[:, 1] + 0.5 * x[:, 0] ** 2 - 3 * x[:, 0] * x[:, 1] + x[:, 1] ** 2  # noqa: E731
+    xe = rng.uniform(0.0, 1.0, (50, 2))
+    np.testing.assert_allclose(mls_interpolate(xs, f(xs), xe, 0.06), f(xe), atol=1e-10)
+    two = np.stack([f(xs), 2 * f(xs)], 1)
+    np.testing.assert_allclose(mls_interpolate(xs, two, xe, 0.06), np.stack([f(xe), 2 * f(xe)], 1), atol=1e-10)
+
+
+# --- config ------------------------------------------------------------------------------------
+
+def test_config_and_derived_viscosity():
+    cfg = config.load(CFG)
+    c = cfg["case"]
+    assert (c["n"], c["length"], c["u_lid"], c["re"]) == (40, 1.0, 1.0, 100.0)
+    assert cfg["eos"] == {"kind": "tait", "rho0": 1.0, "c0": 10.0, "gamma": 7.0, "p0": 0.0}
+    assert cfg["physics"]["mu"] == 0.0 and cfg["scheme"]["frame"] == "eulerian"
+    pb = build_problem(cfg)
+    assert float(pb.params["physics.mu"]) == pytest.approx(0.01) and pb.scheme.viscous
+    assert pb.config["physics"]["mu"] == pytest.approx(0.01) and pb.steady_tol == c["steady_tol"] > 0
+    # Re = 400 / 1000 are one override away; an explicit, consistent physics.mu is accepted
+    for re, mu in ((400, 0.0025), (1000, 0.001)):
+        pbr = build_problem(config.load(CFG, [f"case.re={re}"]))
+        assert float(pbr.params["physics.mu"]) == pytest.approx(mu, rel=1e-12)
+    config.load(CFG, ["case.re=400", "physics.mu=0.0025"])
+    # the resolved config written to the output round-trips (it records the derived mu)
+    assert config.validate(pb.config)["physics"]["mu"] == pytest.approx(0.01)
+
+
+@pytest.mark.parametrize("overrides, fragments", [
+    (["physics.mu=0.02"], ["invalid physics.mu=0.02", "case.re=100", "0.01", "set case.re instead"]),
+    (["scheme.frame=lagrangian"], ['invalid scheme.frame="lagrangian"', '"eulerian"']),
+    (["physics.body_force=[0.0, -9.81]"], ["invalid physics.body_force=[0.0, -9.81]", "allowed: []"]),
+    (["case.re=0"], ["invalid case.re=0"]),
+    (["case.u_lid=-1"], ["invalid case.u_lid=-1"]),
+    (["case.n=4"], ["invalid case.n=4"]),
+    (["case.steady_tol=-1"], ["invalid case.steady_tol=-1"]),
+    (["case.reynolds=100"], ["unknown key case.reynolds"]),
+])
+def test_bad_input_names_the_key(overrides, fragments):
+    msg = _err(overrides)
+    for f in fragments:
+        assert f in msg, (f, msg)
+
+
+def test_eos_must_be_tait():
+    with pytest.raises(ConfigError) as e:
+        config.load(None, case="lid_driven_cavity", overrides=["eos.kind=ideal_gas"])
+    assert 'invalid eos.kind="ideal_gas"' in str(e.value) and '"tait"' in str(e.value)
+
+
+# --- set-up ------------------------------------------------------------------------------------
+
+def test_walls_and_corner_ghosts():
+    cfg = config.load(CFG, ["case.n=20"])
+    pb = build_problem(cfg)
+    p = pb.particles
+    x, kind = np.asarray(p.x), np.asarray(p.kind)
+    fluid, ghost = kind == int(Kind.FLUID), kind == int(Kind.GHOST)
+    dx = 1.0 / 20
+    # 3 layers per wall (support radius 3 dx) and 3 x 3 corner ghosts per corner
+    assert fluid.sum() == 400 and ghost.sum() == 4 * 3 * 20 + 4 * 9
+    inside = (x[:, 0] > 0) & (x[:, 0] < 1) & (x[:, 1] > 0) & (x[:, 1] < 1)
+    assert np.array_equal(inside, fluid)
+    assert x[ghost].min() == pytest.approx(-2.5 * dx) and x[ghost].max() == pytest.approx(1 + 2.5 * dx)
+    np.testing.assert_array_equal(np.asarray(pb.params["boundary.wall_velocity"]),
+                                  [[0, 0], [1, 0], [0, 0], [0, 0]])
+    # fluid at rest: lid ghosts carry u_G = 2 u_lid - 0 = 2, the other ghosts (and the corner
+    # ghosts, u_GC = u_F) are at rest
+    vel = np.asarray(p.q[:, 1:3] / p.q[:, :1])
+    lid = ghost & (x[:, 1] > 1) & (x[:, 0] > 0) & (x[:, 0] < 1)
+    corner = ghost & ~((x[:, 0] > 0) & (x[:, 0] < 1)) & ~((x[:, 1] > 0) & (x[:, 1] < 1))
+    assert lid.sum() == 60 and corner.sum() == 36
+    np.testing.assert_allclose(vel[lid], np.tile([2.0, 0.0], (60, 1)))
+    assert np.all(vel[ghost & ~lid] == 0.0) and np.all(vel[fluid] == 0.0)
+    assert not any(pb.domain.periodic)
+
+
+def test_initial_state_metrics():
+    """At rest the centre-line velocities are 0 except next to the lid (the MLS fit sees the
+    lid ghosts): the deviation from Ghia is that of Ghia's profile itself."""
+    pb = build_problem(config.load(CFG, ["case.n=20"]))
+    m = cavity_metrics(pb.particles, pb.params, pb.config, pb.scheme, 100)
+    assert m["kinetic_energy"] == 0.0
+    assert m["ghia_v_max_abs_dev"] == pytest.approx(0.24533, abs=1e-12)     # |v_Ghia(0.8047)|
+    assert m["ghia_u_max_abs_dev"] > 0.5
+
+
+# --- runs --------------------------------------------------------------------------------------
+
+#: Coarse Re = 100 run: 24 x 24 particles, CFL 0.6, outputs every second, steady_tol 2e-3 (the
+#: config's), at most t = 10.
+RUN24 = ["case.n=24", "time.t_end=10", "output.snapshots=10", "time.cfl=0.6", "case.steady_tol=2e-3"]
+U_BOUND, V_BOUND = 0.085, 0.080            # measured 0.0702, 0.0670
+U_RMS_BOUND, V_RMS_BOUND = 0.050, 0.042    # measured 0.0407, 0.0347
+
+
+@pytest.fixture(scope="module")
+def run24():
+    cfg = config.load(CFG, [*QUIET, *RUN24])
+    pb = build_problem(cfg)
+    return cfg, pb, run_problem(pb, cfg, out_dir=None, quiet=True)
+
+
+def test_re100_centerlines_match_ghia(run24):
+    """24 x 24, Re = 100 to the steady state (about 40 s on 2 cores): max deviations from
+Ghia 0.0702 (u) and 0.0670 (v), rms 0.0407 / 0.0347 (bounds 0.085 / 0.080, 0.050 / 0.042);
+compared with Ghia's Re = 400 / 1000 tables the same state deviates by more than the bounds."""
+    cfg, pb, r = run24
+    m = r.summary["metrics"]
+    assert r.summary["status"] == "ok"
+    assert m["ghia_u_max_abs_dev"] < U_BOUND and m["ghia_v_max_abs_dev"] < V_BOUND, m
+    assert m["ghia_u_rms_dev"] < U_RMS_BOUND and m["ghia_v_rms_dev"] < V_RMS_BOUND, m
+    assert -0.25 < m["u_min_centerline"] < -0.18, m     # Ghia: -0.2109
+    # not vacuous: the same state misses Ghia's Re = 400 and Re = 1000 profiles by more
+    for re in (400, 1000):
+        other = cavity_metrics(r.particles, pb.params, pb.config, pb.scheme, re)
+        assert other["ghia_u_max_abs_dev"] > U_BOUND and other["ghia_v_max_abs_dev"] > V_BOUND, other
+    ts = r.summary["timeseries"]
+    assert ts["ghia_u_max_abs_dev"][0] > 0.5 and ts["ghia_v_max_abs_dev"][0] > 0.2   # at rest
+
+
+def test_steady_state_stop(run24):
+    """The relative velocity change per second between outputs falls 1 (t = 1), 0.053, 0.023,
+0.0088, 0.0021, 0.0015 (t = 6): the run stops at t = 6 < t_end = 10 and records it."""
+    cfg, pb, r = run24
+    st = r.summary["steady_state"]
+    assert st["converged"] and 5.0 <= st["t"] <= 8.0 and st["t"] == r.summary["t_final"], st
+    assert st["residual"] < st["tolerance"] == 2e-3
+    rate = r.summary["timeseries"]["velocity_change_rate"]
+    assert rate[-1] == pytest.approx(st["residual"], rel=1e-9) and all(x >= 2e-3 for x in rate[1:-1])
+
+
+@pytest.mark.slow
+def test_thesis_resolution_re100():
+    """Thesis resolution (100 x 100, Re = 100; about an hour on 2 cores).  The deviations fall
+with refinement (u: 0.0702, 0.0451, 0.0341 and v: 0.0670, 0.0324, 0.0190 at n = 24, 40, 50), so
+the 100 x 100 run must do at least as well as the measured 50 x 50 one (bounds: those values
++ 15 %)."""
+    cfg = config.load(CFG, [*QUIET, "case.n=100"])
+    r = run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True)
+    m = r.summary["metrics"]
+    assert r.summary["status"] == "ok" and r.summary["steady_state"]["converged"], r.summary.get("steady_state")
+    assert m["ghia_u_max_abs_dev"] < 0.040 and m["ghia_v_max_abs_dev"] < 0.022, m
