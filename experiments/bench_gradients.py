@@ -47,7 +47,9 @@ def child(n: int, steps: int, checkpoint: str, max_gb: float) -> dict:
 
     cfg = config.load(ROOT / "configs/taylor_green_2d.toml", [f"case.n={n}", "time.t_end=0.2"])
     pb = build_problem(cfg)
-    sim = make_simulate(pb, n_steps=steps, checkpoint=checkpoint, record_every=steps)
+    # record_every=1 (one scalar per step): nested checkpointing groups steps into segments that are
+    # multiples of record_every, so recording only at the end would leave a single segment
+    sim = make_simulate(pb, n_steps=steps, checkpoint=checkpoint, record_every=1)
 
     def f(mu):
         return sim(with_param(pb.params, "physics.mu", mu), pb.particles).series["ke"][-1]
@@ -89,6 +91,7 @@ def main():
     ap.add_argument("--timeout", type=float, default=3600.0, help="seconds per configuration")
     ap.add_argument("--max-gb", type=float, default=16.0,
                     help="do not execute a gradient whose XLA-planned buffers exceed this (report the plan)")
+    ap.add_argument("--out", type=Path, default=ROOT / "experiments" / "output" / "bench_gradients.json")
     ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
@@ -125,7 +128,7 @@ def main():
                   f"{row['forward_p_upd_per_s']:>11.3g} {row['reverse_s']:>8.1f} "
                   f"{row['reverse_s'] / row['forward_s']:>7.2f} {row['peak_rss_mb']:>9.0f} {plan_s} "
                   f"{comp:>9.1f}", flush=True)
-    dest = ROOT / "experiments" / "output" / "bench_gradients.json"
+    dest = args.out
     dest.parent.mkdir(parents=True, exist_ok=True)
     import jax
 

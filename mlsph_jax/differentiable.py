@@ -98,7 +98,9 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
     ``diagnostics(particles, t, params) -> dict`` of differentiable scalars recorded every
     ``record_every`` steps (default :func:`base_diagnostics`, plus the problem's own
     ``differentiable_diagnostics`` when it has one).  ``n_steps`` must be a multiple of
-    ``record_every``.
+    ``record_every``.  Nested segments are whole multiples of ``record_every`` (a record is taken
+    at the end of a block of steps), so keep ``record_every`` <= ~sqrt(n_steps) for the nested
+    memory saving: recording only at the end leaves one segment, i.e. the storage of ``"step"``.
     """
     if checkpoint not in CHECKPOINTS:
         raise InputError(f"invalid checkpoint={checkpoint!r}; allowed: {', '.join(CHECKPOINTS)}")
