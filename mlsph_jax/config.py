@@ -426,7 +426,7 @@ SCHEMA_COMMON: dict[str, dict[str, Key]] = {
         "mu": Key(float, 0.0, minimum=0.0, unit="Pa s",
                   doc="dynamic viscosity (0 = inviscid Euler equations)"),
         "kappa": Key(float, 0.0, minimum=0.0, unit="kg/(m s)",
-                     doc="heat conduction coefficient k/c_v of q = -kappa grad e (0 = none; ignored "
+                     doc="heat conduction coefficient k/c_v of q = -kappa grad e (0 = none; must be 0 "
                          "for the Tait EOS, which has no energy equation)"),
         "body_force": Key(list, [], item_type=float, unit="m/s^2",
                           note="empty, or one component per space dimension",
@@ -667,6 +667,10 @@ def validate(cfg: Mapping) -> dict:
     if case.dim is not None and len(bf) not in (0, case.dim):
         raise ConfigError(f"invalid physics.body_force={_show(bf)}: case {case.name!r} is "
                           f"{case.dim}-D; allowed: [] or a list of {case.dim} floats")
+    if out["eos"]["kind"] == "tait" and out["physics"]["kappa"] > 0:
+        raise ConfigError(f"invalid physics.kappa={_show(out['physics']['kappa'])} with eos.kind = 'tait': the "
+                          "Tait EOS is barotropic and has no energy equation, so heat conduction cannot act; "
+                          "allowed: 0 (or an EOS with an energy equation: ideal_gas, stiffened_gas)")
     if case.check is not None:
         case.check(out)
     return out

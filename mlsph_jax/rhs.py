@@ -306,7 +306,7 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme):
     dq = -sums[:, :nv]
     if scheme.self_flux:
         dq = dq + ale_flux_dot(U, prim, w, sums[:, nv:nv + d], eos)
-    if scheme.viscous:
+    if scheme.diffusive:
         dq = dq + viscous_terms(prim, geom, scheme, params, scheme.fit_degree)
     dq = dq + vol[:, None] * source(U, prim, params, eos)
     if eulerian:

@@ -157,9 +157,14 @@ class Scheme:
         return get_kernel(self.kernel).support
 
     @property
+    def diffusive(self) -> bool:
+        """Whether the diffusive flux D (viscous stress and/or heat flux, thesis eq. 4.40) is on."""
+        return self.viscous or self.heat_conduction
+
+    @property
     def needs_fit(self) -> bool:
-        """Whether per-particle MLS fits are needed (high-order reconstruction or viscous fluxes)."""
-        return self.reconstruction_degree > 0 or self.viscous
+        """Whether per-particle MLS fits are needed (high-order reconstruction or diffusive fluxes)."""
+        return self.reconstruction_degree > 0 or self.diffusive
 
     @property
     def fit_degree(self) -> int:

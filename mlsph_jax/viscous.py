@@ -72,7 +72,7 @@ def viscous_terms(prim, geom, scheme, params, degree: int):
     grad = jnp.einsum("nkmd,nmc->nkcd", dP, a)                       # [N, K, nc, d]
     dP0 = jnp.asarray(basis.gradient_at_origin(degree, d)) / geom.h[:, None, None]   # [N, m, d]
     grad0 = jnp.einsum("nmd,nmc->ncd", dP0, a)                       # [N, nc, d]
-    mu = params["physics.mu"]
+    mu = params["physics.mu"] if scheme.viscous else 0.0
     kappa = params["physics.kappa"] if heat else 0.0
     ge, ge0 = (grad[..., d, :], grad0[:, d, :]) if heat else (None, None)
     D_own = _flux_tensor(grad[..., :d, :], val[..., :d], ge, mu, kappa, scheme.stress, eos.has_energy, d)

@@ -270,6 +270,10 @@ def test_eos_specific_keys():
     text = _with(SOD, "eos", 'kind = "stiffened_gas"\ngamma = 7.15\npc = 3e8')
     assert C.loads(text)["eos"] == {"kind": "stiffened_gas", "gamma": 7.15, "pc": 3e8}
     assert "eos.pc" in _err(_with(SOD, "eos", 'kind = "stiffened_gas"\ngamma = 7.15'))
+    # heat conduction needs an energy equation: not silently ignored for the barotropic Tait EOS
+    msg = _err(R1_TAIT, ["physics.kappa=0.5"])
+    assert "invalid physics.kappa=0.5" in msg and "tait" in msg and "allowed: 0" in msg
+    assert C.loads(SOD, ["physics.kappa=0.5"])["physics"]["kappa"] == 0.5
 
 
 # -- case selection and riemann_1d cross-checks -----------------------------------------------

@@ -94,6 +94,38 @@ def test_viscous_operator_matches_the_laplacian(jitter):
         assert max(errs) < 0.07, errs
 
 
+def test_heat_flux_matches_the_laplacian_of_e_without_viscosity():
+    """Ideal gas at rest with uniform density and e = e0 + eps sin(2 pi y): the heat-flux
+    contribution to d(V rho E)/dt is V kappa laplacian(e) = -V kappa (2 pi)^2 eps sin(2 pi y)
+    (q = -kappa grad e, thesis eq. 4.40), also with mu = 0 (heat conduction alone must not be
+    dropped), with no mass or momentum term, and second order on a lattice."""
+    gas = {"eos.gamma": 1.4, "physics.kappa": 0.0, "physics.mu": 0.0}
+    eos = get_eos("ideal_gas")
+    e0, eps, kappa = 2.5, 0.1, 0.02
+    errs = []
+    for n in (16, 32):
+        dx = 1.0 / n
+        x = lattice(n, n, dx)
+        e = e0 + eps * np.sin(2 * np.pi * x[:, 1])
+        out = []
+        for k in (0.0, kappa):
+            params = Params({**gas, "physics.kappa": k})
+            U = to_conservative(jnp.ones(n * n), jnp.zeros((n * n, 2)), jnp.asarray(0.4 * e), eos, params)
+            p = make_particles(x, np.full(n * n, dx * dx), U, ppd=np.full(n * n, 2))
+            scheme = Scheme(eos="ideal_gas", viscous=False, heat_conduction=k > 0, reconstruction_degree=2,
+                            degree=2, beta=1.5)
+            dom = Domain((0.0, 0.0), (1.0, 1.0), (True, True))
+            h = scheme.beta * np.asarray(p.vol) ** 0.5
+            _, nl = nb.allocate(np.asarray(p.x), h, dom, support=scheme.support)
+            out.append(np.asarray(evaluate(p, params, nl, scheme, dom)[2]))
+        diff = out[1] - out[0]
+        assert np.abs(diff[:, :3]).max() < 1e-12  # conduction moves no mass or momentum
+        heat = diff[:, 3] / (dx * dx)
+        exact = -kappa * (2 * np.pi) ** 2 * eps * np.sin(2 * np.pi * x[:, 1])
+        errs.append(np.linalg.norm(heat - exact) / np.linalg.norm(exact))
+    assert errs[0] < 0.05 and np.log2(errs[0] / errs[1]) > 1.8, errs
+
+
 def test_linear_couette_profile_is_steady():
     """u = U y / H between a fixed and a moving mirror wall is the exact steady state: the ghosts
     continue the linear field (u_G = 2 u_W - u_F), the degree-2 fits reproduce it, so it must be
