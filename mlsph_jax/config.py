@@ -363,6 +363,10 @@ SCHEMA_COMMON: dict[str, dict[str, Key]] = {
         "frame": Key(str, "eulerian", choices=("eulerian", "lagrangian", "ale_shift"),
                      doc="ALE frame velocity: eulerian (w = 0, particles fixed), lagrangian "
                          "(w = u) or ale_shift (w = u + particle-shifting drift, SPEC §9)"),
+        "shift_law": Key(str, "xu", choices=("xu", "fickian"),
+                         doc="drift law of the ale_shift frame: xu (repulsion C U_max sum_j (r_i/r_ij)^2 "
+                             "e_ji / n_i, SPEC §9) or fickian (-C U_max h_i sum_j V_j grad W_ij, smooth where "
+                             "neighbours cross the support edge)"),
         "shift_coefficient": Key(float, 0.02, minimum=0.0,
                                  doc="coefficient C of the ale_shift drift dw_i = C U_max sum_j "
                                      "(r_i/r_ij)^2 e_ji (mlsph_jax.rhs.shifting_velocity)"),

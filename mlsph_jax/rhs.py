@@ -48,6 +48,7 @@ import jax.numpy as jnp
 from . import approximation as apx
 from .approximation import mls
 from .approximation import rows as _rows
+from .errors import InputError
 from .eos import conservative_components, get_eos, primitive_vector, to_primitive
 from .flux import ale_flux_dot, rusanov_components
 from .kernels import get_kernel
@@ -154,23 +155,39 @@ def frame_velocity(U, kind, scheme: Scheme, params: Params):
     return jnp.where((kind == Kind.FLUID)[:, None], vel, 0.0)
 
 
-def shifting_velocity(w, geom: Geometry, kind, scheme: Scheme):
+def shifting_velocity(w, geom: Geometry, kind, scheme: Scheme, vol=None):
     """Particle-shifting drift dw_i of the ``ale_shift`` frame, w_i = u_i + dw_i (SPEC §9 [REC],
-    Xu et al. 2009 type repulsion, within the ALE frame of thesis T:L1563-1565):
+    within the ALE frame of thesis T:L1563-1565; the thesis does not print its law, so it is
+    pluggable, ``scheme.shift_law``):
 
-        dw_i = C U_max sum_j (r_i / r_ij)^2 (x_i - x_j) / r_ij,
+    * ``xu`` (Xu et al. 2009 type repulsion, the SPEC's default):
+      dw_i = C U_max / n_i sum_j (r_i / r_ij)^2 (x_i - x_j) / r_ij over the n_i neighbours strictly
+      inside i's support, r_i their mean distance;
+    * ``fickian`` (Lind et al. 2012 type): dw_i = -C U_max h_i sum_j V_j grad_i W(x_i - x_j, h_i),
+      down the gradient of the particle concentration; it goes to zero smoothly where a neighbour
+      crosses the support edge (the ``xu`` weights jump there).
 
-    r_i the mean neighbour distance of i, U_max = max |u| over fluid particles and C =
-    ``scheme.shift_coefficient``.  It vanishes on regular lattices and pushes particles apart
-    where they cluster; because the fluxes are computed relative to w (ALE, eq. 4.36 and 4.32),
-    no interpolation correction is needed.  Ghost/frozen neighbours repel too (walls)."""
+    U_max = max |w| over fluid particles and C = ``scheme.shift_coefficient``.  Both vanish on
+    regular lattices and push particles apart where they cluster; because the fluxes are
+    computed relative to w (ALE, eq. 4.36 and 4.32), no interpolation correction is needed.
+    Ghost/frozen neighbours repel too (walls)."""
     r2 = jnp.sum(geom.dx * geom.dx, axis=-1)
-    pos = geom.pair_mask & (r2 > 0)
-    r = jnp.sqrt(jnp.where(pos, r2, 1.0))
-    cnt = jnp.maximum(jnp.sum(pos, axis=1), 1)
-    rbar = jnp.sum(jnp.where(pos, r, 0.0), axis=1) / cnt
-    wt = jnp.where(pos, (rbar[:, None] / r) ** 2 / r, 0.0)
-    drift = -jnp.sum(wt[..., None] * geom.dx, axis=1) / cnt[:, None]   # dx = x_j - x_i
+    reach = scheme.support * geom.h[:, None]
+    # strictly inside the support (relative margin): lattice neighbours at exactly the cut-off
+    # are in or out of the list by round-off, which must not break the lattice's symmetry
+    pos = geom.pair_mask & (r2 > 0) & (r2 < (reach * (1.0 - 1e-9)) ** 2)
+    if scheme.shift_law == "fickian":
+        if vol is None:
+            raise InputError("shifting_velocity(shift_law='fickian') needs the particle volumes (vol=...)")
+        gradw = get_kernel(scheme.kernel).grad(-geom.dx, geom.h[:, None])          # grad_i W(x_i - x_j)
+        vj = vol[geom.jsafe]
+        drift = -geom.h[:, None] * jnp.sum(jnp.where(pos, vj, 0.0)[..., None] * gradw, axis=1)
+    else:
+        r = jnp.sqrt(jnp.where(pos, r2, 1.0))
+        cnt = jnp.maximum(jnp.sum(pos, axis=1), 1)
+        rbar = jnp.sum(jnp.where(pos, r, 0.0), axis=1) / cnt
+        wt = jnp.where(pos, (rbar[:, None] / r) ** 2 / r, 0.0)
+        drift = -jnp.sum(wt[..., None] * geom.dx, axis=1) / cnt[:, None]   # dx = x_j - x_i
     fluid = kind == Kind.FLUID
     umax = jnp.max(jnp.where(fluid, jnp.sqrt(jnp.sum(w * w, axis=1) + 1e-300), 0.0))
     return jnp.where(fluid[:, None], scheme.shift_coefficient * umax * drift, 0.0)
@@ -240,7 +257,7 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme):
     prim = to_primitive(U, eos, params)
     w = frame_velocity(U, kind, scheme, params)
     if scheme.frame == "ale_shift":
-        w = w + shifting_velocity(w, geom, kind, scheme)
+        w = w + shifting_velocity(w, geom, kind, scheme, vol)
     jsafe = geom.jsafe
     eulerian = scheme.frame == "eulerian"
     interp = not eulerian and scheme.position_update != "w_i"

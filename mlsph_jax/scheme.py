@@ -28,6 +28,9 @@ FRAMES = Registry("scheme.frame")
 FRAMES.register("eulerian")("w = 0")
 FRAMES.register("lagrangian")("w = u")
 FRAMES.register("ale_shift")("w = u + dw (particle shifting, SPEC §9)")
+SHIFT_LAWS = Registry("scheme.shift_law")
+SHIFT_LAWS.register("xu")("repulsion C U_max sum_j (r_i/r_ij)^2 e_ji / n_i (Xu et al. 2009 type, SPEC §9)")
+SHIFT_LAWS.register("fickian")("-C U_max h_i sum_j V_j grad W_ij (Lind et al. 2012 type; smooth at the support edge)")
 POSITION_UPDATES = ("mls", "shepard", "w_i")
 RECONSTRUCTIONS = ("taylor", "mls_direct")
 LIMITERS = Registry("scheme.limiter")
@@ -52,6 +55,7 @@ class Scheme:
     self_flux:                keep the -F_i . sum_j A_ij term (thesis eq. 4.36)
     frame:                    ``eulerian`` | ``lagrangian`` | ``ale_shift`` (w = u + dw)
     shift_coefficient:        C of the shifting drift (:func:`mlsph_jax.rhs.shifting_velocity`)
+    shift_law:                ``xu`` (default) | ``fickian``: the drift law of ``ale_shift``
     position_update:          ``mls`` (the method's own interpolant of w: MLS for mlsph_ale, the
                               Shepard kernel average T(3.7) for sph_ale) | ``shepard`` | ``w_i``
     limiter:                  ``none`` | ``mood``
@@ -79,6 +83,7 @@ class Scheme:
     self_flux: bool = True
     frame: str = "eulerian"
     shift_coefficient: float = 0.02
+    shift_law: str = "xu"
     position_update: str = "mls"
     limiter: str = "none"
     viscous: bool = False
@@ -101,6 +106,7 @@ class Scheme:
         FLUXES.get(self.flux, "scheme.flux")
         WAVE_SPEEDS.get(self.wave_speed, "scheme.wave_speed")
         FRAMES.get(self.frame, "scheme.frame")
+        SHIFT_LAWS.get(self.shift_law, "scheme.shift_law")
         LIMITERS.get(self.limiter, "scheme.limiter")
         get_eos(self.eos)
         for name in ("degree", "reconstruction_degree"):
