@@ -79,12 +79,14 @@ def _time(fn, args, repeat: int):
 
 
 def _estimate_gb(n: int, k: int, m: int, d: int, derivative: str) -> float:
-    """Working set of the vmapped build (it is not batched over particles): [N, K, m] basis and
-    weighted-basis arrays, with d forward-mode tangents for the full derivative, and the
-    [N, m, K] coefficients; the factor 2 calibrates it against the measured peak RSS
-    (e.g. 3D, N = 97336, K = 160, q = 1 full: estimate 9.3 GB, measured 8.7 GB)."""
+    """Working set of the build, which runs over row blocks: the assembled [N, K] values,
+    [N, K, d] gradients and [N, m, K] coefficients (twice: result and input of the update) plus
+    one block's temporaries (at most 2048 rows of [K, m] planes with d tangents for the full
+    derivative, x 4 for the solves)."""
     factor = (d + 1) if derivative == "full" else 1
-    return 2 * 8.0 * n * k * m * (2 * factor + 2) / 2**30
+    outputs = 2 * 8.0 * n * k * (1 + d + m)
+    block = 4 * 8.0 * min(n, 2048) * k * m * (2 * factor + 2)
+    return (outputs + block) / 2**30
 
 
 def worker(cfg: dict) -> None:
@@ -285,7 +287,7 @@ def main(argv=None) -> None:
         "\nfull deg = fraction of particles whose active MLS degree equals the requested one "
         "(beta = 1.5;\ncubic in 3D needs m = 20 independent neighbours: fine on this lattice, "
         "random clouds need beta ~ 1.8).\nRSS GB = peak resident memory of the worker process "
-        "so far (the build is vmapped over all particles)."
+        "so far (the build runs over row blocks of particles)."
     )
     import jax
 

@@ -48,8 +48,8 @@ import jax.numpy as jnp
 from . import approximation as apx
 from .approximation import mls
 from .approximation import rows as _rows
-from .errors import InputError
 from .eos import conservative_components, get_eos, primitive_vector, to_primitive
+from .errors import InputError
 from .flux import ale_flux_dot, rusanov_components
 from .kernels import get_kernel
 from .scheme import Scheme

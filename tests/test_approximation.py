@@ -726,3 +726,26 @@ def test_approx_spec_defaults_and_static_hashability():
     assert mls.monomial_count(2, 3) == 10 == basis.basis_size(2, 3)
     assert [basis.basis_size(q, 2) for q in range(4)] == [1, 3, 6, 10]
     assert math.comb(3 + 3, 3) == basis.basis_size(3, 3) == 20
+
+
+@pytest.mark.parametrize("d,q", [(3, 3), (2, 1)])
+def test_row_blocked_build_equals_one_block(d, q, monkeypatch):
+    """The MLS build runs over row blocks (bounded memory at any N; the per-particle path of
+    large bases since the 3D cubic at N = 1e5 needs tens of GB in one piece): small blocks,
+    including a clamped last block that overlaps its predecessor, give the one-block result
+    (same fallback degrees; values to round-off)."""
+    import mlsph_jax.approximation as apx_mod
+
+    c = cloud(d, "random", True, BETA[d][q])
+    a, L, per = c.args()
+    spec = ApproxSpec("mls", q, "cubic_spline", "fixed_centre", with_coeffs=True)
+    one = jax.jit(lambda *args: build.__wrapped__(*args, spec, L, per))(*a)
+    n, k = c.idx.shape
+    monkeypatch.setattr(apx_mod, "VMAP_BLOCK_ROWS", 7)
+    monkeypatch.setattr(apx_mod, "BLOCK_SLOTS", 7 * k)
+    blocked = jax.jit(lambda *args: build.__wrapped__(*args, spec, L, per))(*a)
+    assert n % 7 != 0
+    np.testing.assert_array_equal(np.asarray(one.degree), np.asarray(blocked.degree))
+    for name in ("values", "gradients", "coeffs"):  # equal up to the vectorisation's round-off
+        ref, got = np.asarray(getattr(one, name)), np.asarray(getattr(blocked, name))
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-13 * np.abs(ref).max(), err_msg=name)

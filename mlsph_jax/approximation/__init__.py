@@ -116,6 +116,10 @@ def pair_offsets(x, idx, mask, box_length=None, periodic=None):
 BLOCK_SLOTS = 40960
 
 
+#: Rows per block of the vmapped per-particle path (bases above ``mls.UNROLL_MAX``).
+VMAP_BLOCK_ROWS = 2048
+
+
 def block_rows(n: int, k: int) -> int:
     """Rows per block for arrays of ``n`` rows and ``k`` slots (see :data:`BLOCK_SLOTS`)."""
     return max(1, min(n, BLOCK_SLOTS // max(k, 1)))
@@ -136,7 +140,7 @@ def row_blocks(fn, n: int, block: int, outputs):
     def body(b, outs):
         start = jnp.minimum(b * block, n - block)
         res = fn(start, block)
-        return tuple(jax.lax.dynamic_update_slice_in_dim(o, r, start, 0)
+        return tuple(jax.lax.dynamic_update_slice_in_dim(o, r.astype(o.dtype), start, 0)
                      for o, r in zip(outs, res, strict=True))
 
     init = tuple(jnp.zeros(shape, dtype) for shape, dtype in outputs)
@@ -195,11 +199,22 @@ def build_from_offsets(dx, h, vol, idx, mask, spec: ApproxSpec, *,
 
             out = row_blocks(blk, n, block_rows(n, k), outputs)
             return ShapeOperators(out[0], out[1], out[3] if spec.with_coeffs else None, h, out[2])
-        f = functools.partial(mls.particle_operators, kernel=kern, degree=q,
-                              rcond=spec.rcond, derivative=spec.derivative,
-                              with_coeffs=spec.with_coeffs)
-        values, grads, coeffs, deg = jax.vmap(f)(dx, mask, h)
-        return ShapeOperators(values, grads, coeffs, h, deg)
+        # large bases (3D cubic, m = 20): per-particle solves, vmapped over row blocks so the
+        # working set (a few [rows, K, m] planes with d tangents) stays bounded for any N
+        f = jax.vmap(functools.partial(mls.particle_operators, kernel=kern, degree=q,
+                                       rcond=spec.rcond, derivative=spec.derivative,
+                                       with_coeffs=spec.with_coeffs))
+        m = basis.basis_size(q, d)
+        outputs = [((n, k), dx.dtype), ((n, k, d), dx.dtype), ((n,), jnp.int32)]
+        if spec.with_coeffs:
+            outputs.append(((n, m, k), dx.dtype))
+
+        def vblk(s, b):
+            values, grads, coeffs, deg = f(rows(dx, s, b), rows(mask, s, b), rows(h, s, b))
+            return (values, grads, deg) + ((coeffs,) if spec.with_coeffs else ())
+
+        out = row_blocks(vblk, n, max(block_rows(n, k), min(n, VMAP_BLOCK_ROWS)), outputs)
+        return ShapeOperators(out[0], out[1], out[3] if spec.with_coeffs else None, h, out[2])
 
     jsafe = jnp.where(mask, idx, jnp.arange(n)[:, None])
     hij = 0.5 * (h[:, None] + h[jsafe])
