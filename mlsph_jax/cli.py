@@ -83,8 +83,11 @@ def _parser() -> argparse.ArgumentParser:
     c_.add_argument("--fit", nargs="+", required=True, metavar="KEY", help="parameters to fit, e.g. physics.mu")
     c_.add_argument("--target", required=True, help="CSV with a t column and diagnostic columns (e.g. ke)")
     c_.add_argument("--steps", type=int, default=50, help="optimiser iterations")
-    c_.add_argument("--lr", type=float, default=0.05, help="Adam learning rate (on relative parameter changes)")
+    c_.add_argument("--lr", type=float, default=None,
+                    help="learning rate on relative parameter changes: Adam's initial rate (default 0.05, cosine "
+                         "decay); with L-BFGS a fixed step scale replacing the zoom line search (default: line search)")
     c_.add_argument("--optimizer", default="lbfgs", choices=("lbfgs", "adam"), help="optax optimiser")
+    c_.add_argument("--quiet", action="store_true", help="no progress bar (the per-iteration lines stay)")
     return p
 
 
@@ -186,12 +189,14 @@ def cmd_calibrate(args) -> int:
     problem = build_problem(cfg)
     target = read_target(args.target)
 
+    from tqdm.auto import tqdm
+
     def show(h):
         ps = ", ".join(f"{k} = {v}" for k, v in h["params"].items())
-        print(f"iteration {h['iteration']:4d}  loss {h['loss']:.6e}  {ps}", flush=True)
+        tqdm.write(f"iteration {h['iteration']:4d}  loss {h['loss']:.6e}  {ps}")  # above the bar
 
-    res = calibrate(problem, args.fit, target, steps=args.steps, lr=args.lr, progress=False, callback=show,
-                    optimizer=args.optimizer, **_diff_kw(args))
+    res = calibrate(problem, args.fit, target, steps=args.steps, lr=args.lr, progress=not args.quiet,
+                    callback=show, optimizer=args.optimizer, **_diff_kw(args))
     out = Path(args.out) if args.out else Path("out") / f"{stem}_calibration"
     write_calibration(out, res)
     print(f"fitted {res['final']} (loss {res['loss']:.3e}); wrote {out / 'history.json'} and {out / 'calibration.png'}")

@@ -138,18 +138,23 @@ def read_target(path: str | Path) -> dict[str, np.ndarray]:
 OPTIMIZERS = ("lbfgs", "adam")
 
 
-def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], steps: int = 50, lr: float = 0.05,
+def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], steps: int = 50, lr: float | None = None,
               progress: bool = True, callback=None, optimizer: str = "lbfgs", **simulate_kw) -> dict:
     """Fit ``fit`` parameters to ``target`` series with optax (module docstring).
 
     ``optimizer``: ``lbfgs`` (default; optax L-BFGS with a zoom line search, which for these
-    smooth few-parameter fits converges in a handful of iterations) or ``adam`` (learning rate
-    ``lr`` with cosine decay to zero over ``steps``, so that it settles instead of oscillating).
+    smooth few-parameter fits converges in a handful of iterations; a given ``lr`` replaces the
+    line search by that fixed step scale) or ``adam`` (learning rate ``lr``, default 0.05, with
+    cosine decay to zero over ``steps``, so that it settles instead of oscillating).
     """
     import optax
 
     if optimizer not in OPTIMIZERS:
         raise InputError(f"invalid optimizer={optimizer!r}; allowed: {', '.join(OPTIMIZERS)}")
+    if lr is not None and not (np.isfinite(lr) and lr > 0):
+        raise InputError(f"invalid lr={lr!r}; allowed: a finite float > 0 (or None for the default)")
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
+        raise InputError(f"invalid steps={steps!r}; allowed: an integer >= 0")
     _check_wrt(problem.params, fit)
     simulate = _simulate_for(problem, **simulate_kw)
     cols = [c for c in target if c != "t"]
@@ -173,14 +178,14 @@ def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], ste
     vg = jax.jit(jax.value_and_grad(loss, has_aux=True))
     s = {k: jnp.zeros_like(v) for k, v in theta0.items()}
     if optimizer == "adam":
-        opt = optax.adam(optax.cosine_decay_schedule(lr, max(steps, 1)))
+        opt = optax.adam(optax.cosine_decay_schedule(0.05 if lr is None else lr, max(steps, 1)))
 
         @jax.jit
         def advance(s, state, val, g):
             upd, state = opt.update(g, state, s)
             return optax.apply_updates(s, upd), state
     else:
-        opt = optax.lbfgs()
+        opt = optax.lbfgs() if lr is None else optax.lbfgs(learning_rate=lr, linesearch=None)
 
         @jax.jit
         def advance(s, state, val, g):
