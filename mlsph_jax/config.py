@@ -386,7 +386,7 @@ SCHEMA_COMMON: dict[str, dict[str, Key]] = {
         "mood_delta_abs": Key(float, 1e-4, minimum=0.0,
                               doc="absolute NAD tolerance floor (thesis eq. 3.13; in the variable's units)"),
         "mood_delta_floor": Key(str, "scaled", choices=("scaled", "absolute"),
-                                doc="NAD floor: scaled = mood_delta_abs * max |phi| over the stencil "
+                                doc="NAD floor: scaled = mood_delta_abs * max |phi| over all particles "
                                     "(default; unit-free), absolute = mood_delta_abs as printed in "
                                     "thesis eq. 3.13 (in the variable's units: Pa, kg/m^3)"),
         "mood_delta_rel": Key(float, 1e-3, minimum=0.0,
