@@ -1,4 +1,4 @@
-"""Validation of the weakly compressible Taylor-Green vortex (thesis §3.7.3, Figs. 3.10-3.12).
+"""Validation of the weakly compressible Taylor-Green vortex (thesis §3.7.3, Figs. 3.10-3.13; §4.5.1, Fig. 4.6).
 
 1. Decay runs (thesis Figs. 3.10-3.12): the built-in config configs/taylor_green_2d.toml
    (L = 1, Eulerian MLSPH-ALE, quadratic reconstruction) at ``--n`` particles per side to
@@ -10,6 +10,13 @@
 2. Convergence study: relative L2 velocity error (and the pressure and energy errors) at
    ``--conv-t`` for Re = 100 and n in ``--conv-sizes`` on the Cartesian and the perturbed
    (+-0.15 dx, seed 1) layouts, with the observed orders log2(e(n) / e(2n)) / log2(2n / n).
+3. ``--fig313``: the pressure along y = L/2 at t* = 6 for Re = 1000 against the exact
+   solution, at each n of ``--fig313-sizes`` (thesis Fig. 3.13; particles within dx/2 of the
+   line, gauge pressure minus its mean; writes docs/figures/taylor_green_fig313_pressure_line.png).
+4. ``--fig46``: the §4.5.1 run, configs/taylor_green_2d_mlsph.toml ([0, 2 pi]^2, 50 x 50,
+   Re = 100 on L / 2 pi), in the particle-shifting ALE frame and Eulerian: max |u| and E_k
+   against exp(-2 nu t) and exp(-4 nu t), nu = 0.01 (thesis eq. 4.41, Fig. 4.6; writes
+   docs/figures/taylor_green_fig46_decay.png).
 
 Writes experiments/output/taylor_green_validation.json and docs/figures/taylor_green_decay.png,
 taylor_green_fields_re100.png, taylor_green_convergence.png.  The defaults (n = 50 to t = 1;
@@ -19,6 +26,7 @@ convergence 16, 32, 64 to t = 0.2) take about 6 minutes on 2 cores; the thesis r
     python experiments/validate_taylor_green.py [--n 50] [--t-end 1.0] [--re 10 100 1000]
         [--conv-sizes 16 32 64] [--conv-t 0.2] [--layouts cartesian perturbed]
         [--method mlsph_ale] [--skip-decay] [--skip-convergence]
+        [--fig313 [--fig313-sizes 50]] [--fig46]
 """
 
 from __future__ import annotations
@@ -149,6 +157,91 @@ def convergence_study(args, figs: Path) -> dict:
     return out
 
 
+def fig313_study(args, figs: Path) -> dict:
+    """Thesis Fig. 3.13: p along y = L/2 at t* = 6, Re = 1000."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from mlsph_jax.cases.taylor_green_2d import fields
+
+    out = {}
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    xs = np.linspace(0.0, 1.0, 400)
+    for k, n in enumerate(args.fig313_sizes):
+        cfg, pb, res, wall = run([f"case.n={n}", "case.re=1000.0", "time.t_end=6.0", f"scheme.method={args.method}",
+                                  "output.snapshots=2"])
+        t = res.summary["t_final"]
+        exact = TaylorGreen.from_config(cfg)
+        f = fields(res.particles, pb.params, "tait")
+        line = np.abs(f["x"][:, 1] - 0.5) < 0.5 / n
+        order = np.argsort(f["x"][line, 0])
+        x, p = f["x"][line, 0][order], f["p"][line][order]
+        p = p - np.sum(f["vol"] * f["p"]) / np.sum(f["vol"])              # gauge: the mean is free (WC)
+        pe = np.asarray(exact.pressure(np.stack([x, np.full_like(x, 0.5)], 1), t))
+        amp = float(exact.pressure_amplitude(t))
+        err = float(np.sqrt(np.mean((p - pe) ** 2)) / amp)
+        out[str(n)] = {"t": t, "line_rms_error_rel": err, "wall_s": wall, "n_steps": res.summary["n_steps"],
+                       "metrics": res.summary["metrics"]}
+        print(f"Fig. 3.13: n = {n}, t = {t:.3f}, RMS error of p along y = L/2 relative to the exact amplitude "
+              f"{err:.4f}, {res.summary['n_steps']} steps, {wall:.0f} s", flush=True)
+        ax.plot(x, p, "o", ms=3.5, mfc="none", color=f"C{k}", label=f"{n} x {n}")
+    ax.plot(xs, np.asarray(exact.pressure(np.stack([xs, np.full_like(xs, 0.5)], 1), t)), "k-", lw=1.0,
+            label="exact")
+    ax.set_xlabel("x / L")
+    ax.set_ylabel("p - <p> along y = L/2")
+    ax.set_title(f"Taylor-Green, Re = 1000, t* = 6 (thesis Fig. 3.13), {args.method}, Eulerian", fontsize=8)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(figs / "taylor_green_fig313_pressure_line.png", dpi=120)
+    plt.close(fig)
+    return out
+
+
+def fig46_study(args, figs: Path) -> dict:
+    """Thesis Fig. 4.6: the §4.5.1 run (2 pi box, Re = 100 on L / 2 pi), ALE-shift and Eulerian."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cfg_path = ROOT / "configs" / "taylor_green_2d_mlsph.toml"
+    out = {}
+    fig, axes = plt.subplots(1, 2, figsize=(10.0, 4.0))
+    for k, frame in enumerate(("ale_shift", "eulerian")):
+        cfg = config.load(cfg_path, [f"scheme.frame={frame}", "output.plots=false", "output.progress=false",
+                                     "output.snapshots=40"])
+        pb = build_problem(cfg)
+        t0 = time.perf_counter()
+        res = run_problem(pb, cfg, out_dir=None, quiet=True)
+        wall = time.perf_counter() - t0
+        s = res.summary
+        ts = {key: np.asarray(v) for key, v in s["timeseries"].items()}
+        out[frame] = {"metrics": s["metrics"], "conservation": s["conservation"], "wall_s": wall,
+                      "n_steps": s["n_steps"], "status": s["status"]}
+        m = s["metrics"]
+        print(f"Fig. 4.6: {frame}: ke_rel_error {m['ke_rel_error']:.4f}, umax_rel_error {m['umax_rel_error']:.4f}, "
+              f"l2_velocity_error {m['l2_velocity_error']:.4f}, status {s['status']}, {s['n_steps']} steps, "
+              f"{wall:.0f} s", flush=True)
+        axes[0].plot(ts["t"], ts["umax"], "o", ms=3.5, mfc="none", color=f"C{k}", label=frame)
+        axes[1].plot(ts["t"], ts["ke"] / ts["ke"][0], "o", ms=3.5, mfc="none", color=f"C{k}", label=frame)
+    tf = np.linspace(0.0, float(cfg["time"]["t_end"]), 200)
+    decay = np.asarray(TaylorGreen.from_config(cfg).decay(tf))        # exp(-2 nu t), eq. 4.41
+    axes[0].plot(tf, decay, "k-", lw=1.0, label="exact exp(-2 nu t)")
+    axes[1].plot(tf, decay ** 2, "k-", lw=1.0, label="exact exp(-4 nu t)")
+    axes[0].set_ylabel("max |u| / U0")
+    axes[1].set_ylabel("$E_k / E_{k0}$")
+    for ax in axes:
+        ax.set_xlabel("t")
+        ax.legend(fontsize=8)
+    fig.suptitle("Taylor-Green on [0, 2 pi]^2, Re = 100, 50 x 50, MLSPH-ALE (thesis §4.5.1, Fig. 4.6)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(figs / "taylor_green_fig46_decay.png", dpi=120)
+    plt.close(fig)
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--n", type=int, default=50, help="particles per side of the decay runs")
@@ -162,6 +255,9 @@ def main(argv=None) -> int:
     ap.add_argument("--figures", default=str(ROOT / "docs" / "figures"))
     ap.add_argument("--skip-decay", action="store_true")
     ap.add_argument("--skip-convergence", action="store_true")
+    ap.add_argument("--fig313", action="store_true", help="also the Re = 1000, t* = 6 pressure line (Fig. 3.13)")
+    ap.add_argument("--fig313-sizes", type=int, nargs="+", default=[50])
+    ap.add_argument("--fig46", action="store_true", help="also the §4.5.1 run in both frames (Fig. 4.6)")
     args = ap.parse_args(argv)
     figs = Path(args.figures)
     figs.mkdir(parents=True, exist_ok=True)
@@ -171,6 +267,10 @@ def main(argv=None) -> int:
     if not args.skip_convergence:
         result["convergence"] = {"t": args.conv_t, "re": 100.0, "perturbation": 0.15, "seed": 1,
                                  "layouts": convergence_study(args, figs)}
+    if args.fig313:
+        result["fig313"] = fig313_study(args, figs)
+    if args.fig46:
+        result["fig46"] = fig46_study(args, figs)
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(result, indent=2) + "\n")
     print(f"wrote {OUT.relative_to(ROOT)} and figures in {figs}")
