@@ -12,7 +12,10 @@ without checkpointing stores every stage's residuals).  Prints a table and write
 experiments/output/bench_gradients.json.
 
     python experiments/bench_gradients.py [--sizes 50 100] [--steps 1000] [--checkpoints none step nested]
-        [--max-gb 16]
+        [--max-gb 16] [--plan-only] [--out FILE]
+
+``--plan-only`` compiles both programs and reports XLA's memory plan without executing them (the
+issue's 10,000-step question: ``--sizes 100 --steps 10000 --checkpoints nested --plan-only``).
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ def _planned_mb(compiled) -> float | None:
         return None
 
 
-def child(n: int, steps: int, checkpoint: str, max_gb: float) -> dict:
+def child(n: int, steps: int, checkpoint: str, max_gb: float, plan_only: bool = False) -> dict:
     import jax
 
     from mlsph_jax import config
@@ -60,6 +63,14 @@ def child(n: int, steps: int, checkpoint: str, max_gb: float) -> dict:
     t0 = time.perf_counter()
     c = fwd.lower(mu).compile()
     out["forward_compile_s"] = time.perf_counter() - t0
+    if plan_only:  # XLA's memory plan of both programs, nothing executed (e.g. 10,000 steps)
+        t0 = time.perf_counter()
+        cg = jax.jit(jax.grad(f)).lower(mu).compile()
+        out["reverse_compile_s"] = time.perf_counter() - t0
+        out["planned_forward_mb"] = _planned_mb(c)
+        out["planned_reverse_mb"] = _planned_mb(cg)
+        out["skipped"] = "--plan-only: compiled, not executed"
+        return out
     t0 = time.perf_counter()
     jax.block_until_ready(c(mu))
     out["forward_s"] = time.perf_counter() - t0
@@ -92,10 +103,12 @@ def main():
     ap.add_argument("--max-gb", type=float, default=16.0,
                     help="do not execute a gradient whose XLA-planned buffers exceed this (report the plan)")
     ap.add_argument("--out", type=Path, default=ROOT / "experiments" / "output" / "bench_gradients.json")
+    ap.add_argument("--plan-only", action="store_true",
+                    help="compile forward and reverse programs and report XLA's memory plan without running them")
     ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
-        print(json.dumps(child(int(args.child[0]), int(args.child[1]), args.child[2], args.max_gb)))
+        print(json.dumps(child(int(args.child[0]), int(args.child[1]), args.child[2], args.max_gb, args.plan_only)))
         return
     rows = []
     print(f"{'N':>7} {'steps':>6} {'checkpoint':<10} {'fwd s':>8} {'fwd p-upd/s':>11} {'rev s':>8} {'rev/fwd':>7} "
@@ -103,6 +116,8 @@ def main():
     for n in args.sizes:
         for ck in args.checkpoints:
             cmd = [sys.executable, __file__, "--max-gb", str(args.max_gb), "--child", str(n), str(args.steps), ck]
+            if args.plan_only:
+                cmd.insert(2, "--plan-only")
             try:
                 r = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout)
             except subprocess.TimeoutExpired:
@@ -120,9 +135,10 @@ def main():
             plan_s = f"{plan:>9.0f}" if plan is not None else f"{'?':>9}"
             comp = row["forward_compile_s"] + row["reverse_compile_s"]
             if "skipped" in row:
-                print(f"{row['n_particles']:>7} {row['steps']:>6} {ck:<10} {row['forward_s']:>8.1f} "
-                      f"{row['forward_p_upd_per_s']:>11.3g} {'-':>8} {'-':>7} {'-':>9} {plan_s} {comp:>9.1f}  "
-                      f"not executed: {row['skipped']}", flush=True)
+                fwd = (f"{row['forward_s']:>8.1f} {row['forward_p_upd_per_s']:>11.3g}" if "forward_s" in row
+                       else f"{'-':>8} {'-':>11}")
+                print(f"{row['n_particles']:>7} {row['steps']:>6} {ck:<10} {fwd} {'-':>8} {'-':>7} {'-':>9} "
+                      f"{plan_s} {comp:>9.1f}  not executed: {row['skipped']}", flush=True)
                 continue
             print(f"{row['n_particles']:>7} {row['steps']:>6} {ck:<10} {row['forward_s']:>8.1f} "
                   f"{row['forward_p_upd_per_s']:>11.3g} {row['reverse_s']:>8.1f} "

@@ -354,9 +354,8 @@ def test_interpolate_and_gradient_helpers():
 # ----------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("approximation", ["mls", "shepard", "corrected"])
-def test_partition_of_unity_and_nullity_near_boundaries(approximation):
-    d = 2
+@pytest.mark.parametrize("approximation,d", [("mls", 1), ("mls", 2), ("mls", 3), ("shepard", 2), ("corrected", 2)])
+def test_partition_of_unity_and_nullity_near_boundaries(approximation, d):
     for layout in LAYOUTS:
         c, ops = operators(
             d, layout, False, 2 if approximation == "mls" else 1, "full", approximation, beta=1.5
