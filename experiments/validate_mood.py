@@ -111,7 +111,7 @@ def main():
     ap.add_argument("--figures", default=str(ROOT / "docs" / "figures"))
     ap.add_argument("--blast", action="store_true", help="also the 2D blast, first order vs MOOD")
     ap.add_argument("--blast-layout", default=None, help="layout of the blast run (default: the config's)")
-    ap.add_argument("--skip-riemann", action="store_true")
+    ap.add_argument("--skip-riemann", action="store_true", help="only the blast (with --blast)")
     args = ap.parse_args()
     figs = Path(args.figures)
     figs.mkdir(parents=True, exist_ok=True)
@@ -141,6 +141,8 @@ def main():
         out["blast_2d"] = blast(figs, args.blast_layout)
     dest = ROOT / "experiments" / "output"
     dest.mkdir(parents=True, exist_ok=True)
+    if (dest / "mood_validation.json").exists():  # keep the cases this invocation skipped
+        out = {**json.loads((dest / "mood_validation.json").read_text()), **out}
     (dest / "mood_validation.json").write_text(json.dumps(out, indent=2))
     print(f"wrote {dest / 'mood_validation.json'} and figures in {figs}")
 

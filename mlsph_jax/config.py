@@ -368,8 +368,8 @@ SCHEMA_COMMON: dict[str, dict[str, Key]] = {
                              "e_ji / n_i, SPEC §9) or fickian (-C U_max h_i sum_j V_j grad W_ij, smooth where "
                              "neighbours cross the support edge)"),
         "shift_coefficient": Key(float, 0.02, minimum=0.0,
-                                 doc="coefficient C of the ale_shift drift dw_i = C U_max sum_j "
-                                     "(r_i/r_ij)^2 e_ji (mlsph_jax.rhs.shifting_velocity)"),
+                                 doc="coefficient C of the ale_shift drift (both laws of scheme.shift_law; "
+                                     "mlsph_jax.rhs.shifting_velocity)"),
         "stress": Key(str, "stokes", choices=("stokes", "incompressible"),
                       doc="viscous stress: stokes (mu (grad u + grad u^T - 2/3 div u I)) or "
                           "incompressible (no -2/3 div u term, thesis ch. 3)"),
@@ -406,7 +406,7 @@ SCHEMA_COMMON: dict[str, dict[str, Key]] = {
         "cfl": Key(float, 0.3, minimum=0.0, maximum=1.0, exclusive_minimum=True,
                    doc="CFL number C in dt = C min_i dx_i / (|u_i - w_i| + c_i)"),
         "cfl_viscous": Key(float, 0.125, minimum=0.0, maximum=1.0, exclusive_minimum=True,
-                           doc="viscous time-step factor: dt <= cfl_viscous min_i rho_i dx_i^2 / mu"),
+                           doc="diffusive time-step factor: dt <= cfl_viscous min_i rho_i dx_i^2 / max(mu, kappa)"),
         "dt": Key(float, 0.0, minimum=0.0, unit="s", note="0 = adaptive",
                   doc="fixed time step; 0 selects the adaptive CFL step"),
         "max_steps": Key(int, 1_000_000, minimum=1,

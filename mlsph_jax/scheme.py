@@ -107,6 +107,9 @@ class Scheme:
         WAVE_SPEEDS.get(self.wave_speed, "scheme.wave_speed")
         FRAMES.get(self.frame, "scheme.frame")
         SHIFT_LAWS.get(self.shift_law, "scheme.shift_law")
+        if self.heat_conduction and not get_eos(self.eos).has_energy:
+            raise InputError(f"invalid heat_conduction=True with eos={self.eos!r}: it has no energy equation; "
+                             "allowed: False, or an EOS with an energy equation (ideal_gas, stiffened_gas)")
         LIMITERS.get(self.limiter, "scheme.limiter")
         get_eos(self.eos)
         for name in ("degree", "reconstruction_degree"):

@@ -747,6 +747,7 @@ def test_row_blocked_build_equals_one_block(d, q, monkeypatch):
     monkeypatch.setattr(apx_mod, "BLOCK_SLOTS", 7 * k)
     blocked = jax.jit(lambda *args: build.__wrapped__(*args, spec, L, per))(*a)
     assert n % 7 != 0
+    assert one.degree.dtype == blocked.degree.dtype == jnp.int32
     np.testing.assert_array_equal(np.asarray(one.degree), np.asarray(blocked.degree))
     for name in ("values", "gradients", "coeffs"):  # equal up to the vectorisation's round-off
         ref, got = np.asarray(getattr(one, name)), np.asarray(getattr(blocked, name))

@@ -175,9 +175,12 @@ def test_calibrate_cli_fits_the_viscosity_and_writes_history_and_plot(tmp_path):
 
 def test_taylor_green_metrics_are_differentiable_and_agree_with_the_host_metrics():
     """The Taylor-Green error metrics exist as jnp functions (``--of l2_velocity_error`` etc.):
-    on the same state they equal the host metrics of summary.json, and their gradient with
+    on the same state they equal the host metrics of summary.json and an independent numpy
+    evaluation of the formulas (exact solution written out here), and their gradient with
     respect to the viscosity (which enters both the run and the exact solution) and the sound
     speed matches central finite differences to 1e-5."""
+    from mlsph_jax.cases.taylor_green_2d import fields
+
     cfg = config.load("configs/taylor_green_2d.toml", ["case.n=8", "time.t_end=0.05"])
     pb = build_problem(cfg)
     sim = make_simulate(pb, n_steps=10)
@@ -187,6 +190,19 @@ def test_taylor_green_metrics_are_differentiable_and_agree_with_the_host_metrics
     dm = pb.differentiable_metrics(out.particles, t, pb.params)
     for k, v in dm.items():
         assert float(v) == pytest.approx(host[k], rel=1e-12), k
+    f = fields(out.particles, pb.params, "tait")
+    x, vol, vel, p = f["x"], f["vol"], f["vel"], f["p"]
+    F = np.exp(-8 * np.pi**2 * float(pb.params["physics.mu"]) * t)       # L = U0 = rho0 = 1
+    ue = F * np.stack([np.sin(2 * np.pi * x[:, 0]) * np.cos(2 * np.pi * x[:, 1]),
+                       -np.cos(2 * np.pi * x[:, 0]) * np.sin(2 * np.pi * x[:, 1])], 1)
+    pe = 0.25 * F**2 * (np.cos(4 * np.pi * x[:, 0]) + np.cos(4 * np.pi * x[:, 1]))
+    l2u = np.sqrt(np.sum(vol[:, None] * (vel - ue) ** 2) / np.sum(vol[:, None] * ue**2))
+    dp = (p - np.average(p, weights=vol)) - (pe - np.average(pe, weights=vol))
+    l2p = np.sqrt(np.average(dp**2, weights=vol)) / (0.5 * F**2)
+    ke = np.sum(0.5 * vol * f["rho"] * np.sum(vel**2, 1))
+    assert float(dm["l2_velocity_error"]) == pytest.approx(l2u, rel=1e-10)
+    assert float(dm["l2_pressure_error"]) == pytest.approx(l2p, rel=1e-10)
+    assert float(dm["ke_rel_error"]) == pytest.approx(abs(ke / (0.25 * F**2) - 1), rel=1e-10)
     res = sensitivity(pb, ["physics.mu", "eos.c0"], "l2_velocity_error", check_fd=True, n_steps=10)
     for k, e in res["gradients"].items():
         assert abs(e["gradient"]) > 0 and e["rel_disagreement"] < 1e-5, (k, e)
@@ -214,7 +230,8 @@ def test_forward_mode_and_vjp_agree_with_reverse_mode():
 
 def test_neighbour_overflow_in_a_differentiated_run_is_an_error():
     """A differentiated run keeps its neighbour capacity fixed; when compression overflows it,
-    run_differentiable and sensitivity raise NeighborOverflowError instead of truncating."""
+    run_differentiable raises NeighborOverflowError instead of truncating (sensitivity and
+    calibrate call the same check_overflow on their runs)."""
     from mlsph_jax.differentiable import run_differentiable
     from mlsph_jax.errors import NeighborOverflowError
 

@@ -187,6 +187,10 @@ def test_viscous_time_step_limit():
 def test_wall_and_scheme_input_errors():
     with pytest.raises(InputError, match="scheme.stress"):
         Scheme(stress="newtonian")
+    with pytest.raises(InputError, match="heat_conduction=True with eos='tait'"):   # no energy equation
+        Scheme(eos="tait", heat_conduction=True)
+    with pytest.raises(InputError, match="scheme.shift_law"):
+        Scheme(frame="ale_shift", shift_law="random")
     with pytest.raises(InputError, match="side"):
         Wall(1, 0.0, 0)
     params = Params({**TAIT, "physics.mu": 0.1, "boundary.wall_velocity": jnp.zeros((1, 2))})

@@ -134,7 +134,7 @@ def row_blocks(fn, n: int, block: int, outputs):
     predecessor.  With ``block >= n`` this is a single call.
     """
     if block >= n:
-        return tuple(fn(0, n))
+        return tuple(r.astype(dtype) for r, (_, dtype) in zip(fn(0, n), outputs, strict=True))
     nb = -(-n // block)
 
     def body(b, outs):

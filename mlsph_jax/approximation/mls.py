@@ -117,7 +117,7 @@ def active_monomials(ok, degree: int, dim: int):
         run = run & jnp.all(jnp.where(jnp.asarray(mdeg == lev), ok, True))
         level_ok.append(run)
     level_ok = jnp.stack(level_ok)
-    active_degree = jnp.sum(level_ok.astype(jnp.int32)) - 1  # level 0 always ok
+    active_degree = jnp.sum(level_ok, dtype=jnp.int32) - 1  # level 0 always ok
     active = jnp.asarray(mdeg) <= active_degree
     return active, active_degree
 

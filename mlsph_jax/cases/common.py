@@ -27,4 +27,4 @@ def scheme_from_config(cfg: Mapping) -> Scheme:
     s = Scheme.from_config(cfg["scheme"], cfg["eos"]["kind"])
     phys = cfg.get("physics", {})
     return dataclasses.replace(s, viscous=float(phys.get("mu", 0.0)) > 0,
-                               heat_conduction=float(phys.get("kappa", 0.0)) > 0 and cfg["eos"]["kind"] != "tait")
+                               heat_conduction=float(phys.get("kappa", 0.0)) > 0)

@@ -65,6 +65,7 @@ import numpy as np
 
 from ..eos import get_eos, to_conservative, to_primitive
 from ..errors import ConfigError
+from ..kernels import safe_norm
 from ..simulation import Problem
 from ..state import Domain, Kind, Particles, make_particles
 from . import CASES
@@ -228,9 +229,9 @@ def error_terms(p: Particles, t, P, exact: TaylorGreen, eos_kind: str) -> dict:
     pg = pr.p - (P["eos.p0"] if "eos.p0" in P else 0.0)
     ue = exact.velocity(p.x, t)
     pe = exact.pressure(p.x, t)
-    speed = jnp.where(fluid, jnp.sqrt(jnp.sum(vel * vel, axis=1)), 0.0)
-    speed_e = jnp.where(fluid, jnp.sqrt(jnp.sum(ue * ue, axis=1)), 0.0)
-    err_u = jnp.sqrt(jnp.sum(vol * jnp.sum((vel - ue) ** 2, axis=1)) / jnp.sum(vol * speed_e ** 2))
+    speed = jnp.where(fluid, safe_norm(vel), 0.0)          # finite derivative also where |u| = 0
+    speed_e = jnp.where(fluid, safe_norm(ue), 0.0)
+    err_u = jnp.sqrt(jnp.sum(vol * jnp.sum((vel - ue) ** 2, axis=1)) / jnp.sum(vol * jnp.sum(ue * ue, axis=1)))
     wsum = jnp.sum(vol)
     dp = (pg - jnp.sum(vol * pg) / wsum) - (pe - jnp.sum(vol * pe) / wsum)
     err_p = jnp.sqrt(jnp.sum(vol * dp * dp) / wsum) / exact.pressure_amplitude(t)
