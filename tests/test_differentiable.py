@@ -209,8 +209,9 @@ def test_taylor_green_metrics_are_differentiable_and_agree_with_the_host_metrics
 
 
 def test_forward_mode_and_vjp_agree_with_reverse_mode():
-    """jax.jacfwd and jax.vjp through a whole run give the reverse-mode gradient (the issue's
-    'differentiable with grad, jacfwd and vjp')."""
+    """jax.jacfwd (forward mode) and jax.vjp (reverse mode, what jax.grad uses) through a whole
+    run agree (the issue's 'differentiable with grad, jacfwd and vjp'); the reverse-mode
+    gradient itself is checked against finite differences in the tests above."""
     pb = periodic_shear_problem()
     sim = make_simulate(pb, n_steps=8, checkpoint="step")
 
@@ -219,13 +220,11 @@ def test_forward_mode_and_vjp_agree_with_reverse_mode():
         return sim(p, pb.particles).series["ke"][-1]
 
     theta = jnp.asarray([float(pb.params["physics.mu"]), float(pb.params["eos.c0"])])
-    g = jax.grad(ke)(theta)
-    jf = jax.jacfwd(ke)(theta)
-    val, pull = jax.vjp(ke, theta)
+    jf = jax.jacfwd(ke)(theta)                      # forward mode
+    val, pull = jax.vjp(ke, theta)                  # reverse mode (what jax.grad calls)
     (gv,) = pull(jnp.ones_like(val))
-    assert np.all(np.asarray(g) != 0)
-    np.testing.assert_allclose(jf, g, rtol=1e-10)
-    np.testing.assert_allclose(gv, g, rtol=1e-12)
+    assert np.all(np.asarray(gv) != 0)
+    np.testing.assert_allclose(jf, gv, rtol=1e-10)
 
 
 def test_neighbour_overflow_in_a_differentiated_run_is_an_error():
