@@ -175,45 +175,37 @@ def build_from_offsets(dx, h, vol, idx, mask, spec: ApproxSpec, *,
     n, k, d = dx.shape
     if spec.is_mls:
         q = spec.mls_degree
-        if basis.basis_size(q, d) <= mls.UNROLL_MAX:
+        m = basis.basis_size(q, d)
+        if m <= mls.UNROLL_MAX:
+            # unrolled small bases, whole row blocks at once
             f = functools.partial(mls.operators_block, kernel=kern, degree=q, rcond=spec.rcond,
                                   derivative=spec.derivative, with_coeffs=spec.with_coeffs)
-            m = basis.basis_size(q, d)
+            block = block_rows(n, k)
             if coeffs_only and spec.with_coeffs:
                 f = functools.partial(f, derivative="fixed_centre")
 
-                def blk(s, b):
+                def cblk(s, b):
                     _, _, coeffs, deg = f(rows(dx, s, b), rows(mask, s, b), rows(h, s, b))
                     return deg, coeffs
 
-                deg, coeffs = row_blocks(blk, n, block_rows(n, k),
-                                         [((n,), jnp.int32), ((n, m, k), dx.dtype)])
+                deg, coeffs = row_blocks(cblk, n, block, [((n,), jnp.int32), ((n, m, k), dx.dtype)])
                 return ShapeOperators(None, None, coeffs, h, deg)
-            outputs = [((n, k), dx.dtype), ((n, k, d), dx.dtype), ((n,), jnp.int32)]
-            if spec.with_coeffs:
-                outputs.append(((n, m, k), dx.dtype))
-
-            def blk(s, b):
-                values, grads, coeffs, deg = f(rows(dx, s, b), rows(mask, s, b), rows(h, s, b))
-                return (values, grads, deg) + ((coeffs,) if spec.with_coeffs else ())
-
-            out = row_blocks(blk, n, block_rows(n, k), outputs)
-            return ShapeOperators(out[0], out[1], out[3] if spec.with_coeffs else None, h, out[2])
-        # large bases (3D cubic, m = 20): per-particle solves, vmapped over row blocks so the
-        # working set (a few [rows, K, m] planes with d tangents) stays bounded for any N
-        f = jax.vmap(functools.partial(mls.particle_operators, kernel=kern, degree=q,
-                                       rcond=spec.rcond, derivative=spec.derivative,
-                                       with_coeffs=spec.with_coeffs))
-        m = basis.basis_size(q, d)
+        else:
+            # large bases (3D cubic, m = 20): per-particle solves, vmapped over row blocks so the
+            # working set (a few [rows, K, m] planes with d tangents) stays bounded for any N
+            f = jax.vmap(functools.partial(mls.particle_operators, kernel=kern, degree=q,
+                                           rcond=spec.rcond, derivative=spec.derivative,
+                                           with_coeffs=spec.with_coeffs))
+            block = max(block_rows(n, k), min(n, VMAP_BLOCK_ROWS))
         outputs = [((n, k), dx.dtype), ((n, k, d), dx.dtype), ((n,), jnp.int32)]
         if spec.with_coeffs:
             outputs.append(((n, m, k), dx.dtype))
 
-        def vblk(s, b):
+        def blk(s, b):
             values, grads, coeffs, deg = f(rows(dx, s, b), rows(mask, s, b), rows(h, s, b))
             return (values, grads, deg) + ((coeffs,) if spec.with_coeffs else ())
 
-        out = row_blocks(vblk, n, max(block_rows(n, k), min(n, VMAP_BLOCK_ROWS)), outputs)
+        out = row_blocks(blk, n, block, outputs)
         return ShapeOperators(out[0], out[1], out[3] if spec.with_coeffs else None, h, out[2])
 
     jsafe = jnp.where(mask, idx, jnp.arange(n)[:, None])
