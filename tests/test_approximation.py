@@ -363,9 +363,10 @@ def test_partition_of_unity_and_nullity_near_boundaries(approximation, d):
         pu = np.abs(ops.values.sum(axis=1) - 1.0)
         pn = np.abs(ops.gradients.sum(axis=1)).max(axis=1) * c.h
         # partition of nullity: round-off amplified by the moment matrix' condition number, which
-        # grows at one-sided boundary stencils (measured up to 1.1e-12 in 1D at q = 2, 6e-14 in 2D);
-        # a defect (an unnormalised or uncorrected gradient) is O(1)
-        assert pu.max() < 1e-12 and pn.max() < 1e-11, (approximation, layout, pu.max(), pn.max())
+        # grows at the one-sided boundary stencils of 1D (measured 1.1e-12 at q = 2); 2D and 3D keep
+        # the 1e-12 bound; a defect (an unnormalised or uncorrected gradient) is O(1)
+        pn_tol = 1e-11 if d == 1 else 1e-12
+        assert pu.max() < 1e-12 and pn.max() < pn_tol, (approximation, layout, pu.max(), pn.max())
         assert np.all(ops.values[~c.mask] == 0) and np.all(ops.gradients[~c.mask] == 0)
         if approximation == "shepard":
             assert np.all(ops.degree == 0)
