@@ -1,0 +1,54 @@
+"""Record the run fingerprints (step count, final time, metrics, conservation, MOOD statistics)
+of every built-in config, reduced (the default-suite regression) or at full size.
+
+    python experiments/record_config_metrics.py                 # reduced runs -> stdout JSON
+    python experiments/record_config_metrics.py --full --out F  # full configs
+    python experiments/record_config_metrics.py --compare F     # rerun and compare with F
+
+The reduced fingerprints are stored in tests/data/config_fingerprints.json and checked by
+tests/test_config_regression.py: a refactor must keep them to 1e-12 relative.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+from mlsph_jax.testing import REDUCED_OVERRIDES, builtin_configs, fingerprint_differences, run_fingerprint
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--full", action="store_true", help="the configs as shipped (minutes each) instead of reduced")
+    ap.add_argument("--only", nargs="+", default=None, help="config stems to run")
+    ap.add_argument("--out", help="write the fingerprints to this JSON file")
+    ap.add_argument("--compare", help="compare with the fingerprints in this JSON file; exit 1 on a difference")
+    args = ap.parse_args(argv)
+    ref = json.load(open(args.compare)) if args.compare else None
+    names = args.only or builtin_configs()
+    out, failed = {}, 0
+    for name in names:
+        over = () if args.full else REDUCED_OVERRIDES[name]
+        t0 = time.perf_counter()
+        fp = run_fingerprint(name, over)
+        fp["wall_s"] = round(time.perf_counter() - t0, 1)
+        out[name] = fp
+        line = f"{name:24s} {fp['n_steps']:6d} steps  {fp['wall_s']:7.1f} s"
+        if ref is not None:
+            diff = fingerprint_differences(fp, ref[name]) if name in ref else ["not in the reference"]
+            failed += bool(diff)
+            line += "  " + ("same" if not diff else "DIFFERENT: " + "; ".join(diff))
+        print(line, file=sys.stderr, flush=True)
+    text = json.dumps(out, indent=1, sort_keys=True)
+    if args.out:
+        with open(args.out, "w") as f:
+            f.write(text + "\n")
+    elif ref is None:
+        print(text)
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
