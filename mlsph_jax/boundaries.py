@@ -34,7 +34,13 @@ import numpy as np
 
 from .eos import get_eos, to_conservative, to_primitive
 from .errors import InputError
+from .registry import Registry
 from .state import Kind, Params, Particles
+
+#: Wall treatments (registry ``boundary``): ``setup(p_fluid, walls, band, params, eos) -> (particles,
+#: boundary)`` appends whatever the treatment needs to the fluid particles and returns the object
+#: whose ``apply(particles, params)`` the integrator calls before every stage and after each step.
+BOUNDARIES: Registry = Registry("boundary", protocol=("setup",), doc="wall treatments")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -155,3 +161,14 @@ def with_ghosts(p_fluid: Particles, walls: list[Wall], band: float, params: Para
                         kind=cat(p_fluid.kind, jnp.full(g, int(Kind.GHOST), p_fluid.kind.dtype)),
                         ppd=cat(p_fluid.ppd, p_fluid.ppd[parent]))
     return mw.apply(p, params), mw
+
+
+class MirrorGhosts:
+    """Mirror-ghost walls (module docstring; thesis eq. 3.22): :func:`with_ghosts`."""
+
+    @staticmethod
+    def setup(p_fluid: Particles, walls: list[Wall], band: float, params: Params, eos: str):
+        return with_ghosts(p_fluid, walls, band, params, eos)
+
+
+BOUNDARIES.register("mirror_ghosts", MirrorGhosts())

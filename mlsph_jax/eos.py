@@ -16,7 +16,7 @@ check and MOOD's PAD detector see them.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 import jax.numpy as jnp
 
@@ -28,7 +28,11 @@ class EOS:
     """An equation of state: ``pressure(rho, e, params)`` and ``sound_speed(rho, p, params)``.
 
     ``internal_energy(rho, p, params)`` inverts the pressure law (for initial conditions);
-    ``params_keys`` are the Params keys it reads; ``has_energy`` says whether rho E is solved.
+    ``admissible(rho, p, params)`` is the physical-admissibility test of a state (used by the
+    run's health check and MOOD's PAD detector): rho > 0 always, plus the EOS' own condition;
+    ``params_keys`` are the Params keys it reads (for an EOS registered from a user's script the
+    ``[eos]`` config keys are derived from them, floats, with ``defaults`` where given);
+    ``has_energy`` says whether rho E is solved.
     """
 
     name: str
@@ -37,12 +41,21 @@ class EOS:
     pressure: Callable = dataclasses.field(compare=False, repr=False)
     sound_speed: Callable = dataclasses.field(compare=False, repr=False)
     internal_energy: Callable = dataclasses.field(compare=False, repr=False)
+    admissible: Callable = dataclasses.field(compare=False, repr=False, default=None)
+    defaults: Mapping[str, float] = dataclasses.field(compare=False, repr=False, default_factory=dict)
+
+    def __post_init__(self):
+        if self.admissible is None:   # default: positive, finite density and a finite pressure
+            object.__setattr__(self, "admissible", lambda rho, p, P: (rho > 0) & jnp.isfinite(p))
 
     def n_vars(self, dim: int) -> int:
         return dim + (2 if self.has_energy else 1)
 
 
-EOS_REGISTRY: Registry[EOS] = Registry("eos.kind")
+EOS_REGISTRY: Registry[EOS] = Registry(
+    "eos.kind", protocol=("has_energy", "params_keys", "pressure", "sound_speed", "internal_energy", "admissible",
+                          "n_vars"),
+    doc="equations of state")
 
 
 def _sqrt_or_nan(a):
@@ -55,6 +68,7 @@ EOS_REGISTRY.register("ideal_gas")(EOS(
     pressure=lambda rho, e, P: (P["eos.gamma"] - 1.0) * rho * e,
     sound_speed=lambda rho, p, P: _sqrt_or_nan(P["eos.gamma"] * p / rho),
     internal_energy=lambda rho, p, P: p / ((P["eos.gamma"] - 1.0) * rho),
+    admissible=lambda rho, p, P: (rho > 0) & (p > 0),
 ))
 
 # --- stiffened gas / Tammann: p = (gamma - 1) rho e - gamma pc, c^2 = gamma (p + pc) / rho ----
@@ -63,6 +77,7 @@ EOS_REGISTRY.register("stiffened_gas")(EOS(
     pressure=lambda rho, e, P: (P["eos.gamma"] - 1.0) * rho * e - P["eos.gamma"] * P["eos.pc"],
     sound_speed=lambda rho, p, P: _sqrt_or_nan(P["eos.gamma"] * (p + P["eos.pc"]) / rho),
     internal_energy=lambda rho, p, P: (p + P["eos.gamma"] * P["eos.pc"]) / ((P["eos.gamma"] - 1.0) * rho),
+    admissible=lambda rho, p, P: (rho > 0) & (p + P["eos.pc"] > 0),
 ))
 
 
@@ -81,6 +96,7 @@ EOS_REGISTRY.register("tait")(EOS(
     "tait", False, ("eos.rho0", "eos.c0", "eos.gamma", "eos.p0"),
     pressure=_tait_p, sound_speed=_tait_c,
     internal_energy=lambda rho, p, P: jnp.zeros_like(rho),
+    admissible=lambda rho, p, P: (rho > 0) & jnp.isfinite(p),   # a Tait pressure may be <= 0 (SPEC item 22)
 ))
 
 

@@ -23,11 +23,10 @@ import jax.numpy as jnp
 from .eos import EOS, Primitive
 from .registry import Registry
 
-WAVE_SPEEDS = Registry("scheme.wave_speed")
-for _n in ("rusanov_abs", "printed_ch3", "printed_ch4"):
-    WAVE_SPEEDS.register(_n)(_n)
-FLUXES = Registry("scheme.flux")
-FLUXES.register("rusanov")("rusanov")
+FLUXES: Registry = Registry("scheme.flux", protocol=("pair_flux",), doc="numerical (Riemann) fluxes")
+WAVE_SPEEDS: Registry = Registry("scheme.wave_speed", protocol=("speed",), doc="wave-speed estimates")
+DISSIPATION_NORMALS: Registry = Registry("scheme.dissipation_normal", protocol=("project", "needs_pair_vector"),
+                                         doc="normal of the dissipation term")
 
 
 def ale_flux_dot(U, pr: Primitive, w, a, eos: EOS):
@@ -64,12 +63,92 @@ def primitive_components(U, eos: EOS, params):
     return vel, p, eos.sound_speed(rho, p, params)
 
 
+class RusanovAbs:
+    """S = max(|v^-_n| + c^-, |v^+_n| + c^+), non-negative (the standard Rusanov estimate; default)."""
+
+    @staticmethod
+    def speed(vm, vp, cm, cp):
+        return jnp.maximum(jnp.abs(vm) + cm, jnp.abs(vp) + cp)
+
+
+class PrintedCh3:
+    """S = max(v^+_n + c^+, v^-_n - c^-) as printed in thesis ch. 3 (T:L1233); may be negative."""
+
+    @staticmethod
+    def speed(vm, vp, cm, cp):
+        return jnp.maximum(vp + cp, vm - cm)
+
+
+class PrintedCh4:
+    """S = max(v + c_ij, v - c_ij, v) with interface averages v, c_ij as printed in thesis eq. 4.38."""
+
+    @staticmethod
+    def speed(vm, vp, cm, cp):
+        v = 0.5 * (vm + vp)
+        cij = 0.5 * (cm + cp)
+        return jnp.maximum(jnp.maximum(v + cij, v - cij), v)
+
+
+WAVE_SPEEDS.register("rusanov_abs", RusanovAbs())
+WAVE_SPEEDS.register("printed_ch3", PrintedCh3())
+WAVE_SPEEDS.register("printed_ch4", PrintedCh4())
+
+
+class AreaNormal:
+    """n = A_ij / |A_ij|: the dissipation is 1/2 S (U^+ - U^-) |A_ij|."""
+
+    needs_pair_vector = False
+
+    @staticmethod
+    def project(relm, relp, A, n_pair):
+        """Normal relative velocities (v^-_n, v^+_n) and n . A_ij."""
+        r2 = _dot(A, A)
+        pos = r2 > 0
+        amag = jnp.where(pos, jnp.sqrt(jnp.where(pos, r2, 1.0)), 0.0)     # safe_norm(A)
+        den = jnp.where(amag > 0, amag, 1.0)
+        return _dot(relm, A) / den, _dot(relp, A) / den, amag
+
+
+class PairNormal:
+    """n = n_ij, the unit vector from i to j (identical to ``area`` for kernel SPH-ALE)."""
+
+    needs_pair_vector = True
+
+    @staticmethod
+    def project(relm, relp, A, n_pair):
+        return _dot(relm, n_pair), _dot(relp, n_pair), _dot(n_pair, A)
+
+
+DISSIPATION_NORMALS.register("area", AreaNormal())
+DISSIPATION_NORMALS.register("pair", PairNormal())
+
+
+class RusanovFlux:
+    """Rusanov (local Lax-Friedrichs) flux in the ALE frame (module docstring):
+    G_ij . A_ij = 1/2 [F_w(U^-) + F_w(U^+)] . A_ij - 1/2 S_ij (U^+ - U^-) (n . A_ij), with S_ij from
+    ``scheme.wave_speed`` and n from ``scheme.dissipation_normal``.
+
+    Flux protocol: ``pair_flux(Um, Up, w, A, n_pair, eos, params, scheme) -> list of nv arrays``
+    on lists of component arrays (structure of arrays): ``Um``/``Up`` the i-/j-side states
+    ``[rho, rho u.., (rho E)]``, ``w`` the frame velocity at the interface (list of d arrays) or
+    ``None`` for w = 0, ``A`` the area vector, ``n_pair`` the unit pair vector (only when the
+    dissipation normal asks for it).  Pairs with A = 0 must give exactly zero.
+    """
+
+    def pair_flux(self, Um, Up, w, A, n_pair, eos: EOS, params, scheme):
+        return rusanov_components(Um, Up, w, A, n_pair, eos, params, wave_speed=scheme.wave_speed,
+                                  normal=scheme.dissipation_normal)
+
+
+FLUXES.register("rusanov", RusanovFlux())
+
+
 def rusanov_components(Um, Up, w, A, n_pair, eos: EOS, params, *, wave_speed: str = "rusanov_abs",
                        normal: str = "area"):
     """G_ij . A_ij on lists of component arrays (structure of arrays), see :func:`rusanov_dot_area`.
 
     ``Um``/``Up``: lists of nv arrays; ``w``: list of d arrays or ``None`` (w = 0); ``A`` and
-    ``n_pair``: lists of d arrays (``n_pair`` only read for ``normal == "pair"``).
+    ``n_pair``: lists of d arrays (``n_pair`` only read when the dissipation normal needs it).
     Returns a list of nv arrays.
     """
     d = len(A)
@@ -78,22 +157,8 @@ def rusanov_components(Um, Up, w, A, n_pair, eos: EOS, params, *, wave_speed: st
     relm = velm if w is None else [velm[k] - w[k] for k in range(d)]
     relp = velp if w is None else [velp[k] - w[k] for k in range(d)]
     vam, vap = _dot(relm, A), _dot(relp, A)          # (u -+ w) . A
-    if normal == "area":
-        r2 = _dot(A, A)
-        pos = r2 > 0
-        amag = jnp.where(pos, jnp.sqrt(jnp.where(pos, r2, 1.0)), 0.0)     # safe_norm(A)
-        den = jnp.where(amag > 0, amag, 1.0)
-        vm, vp, n_dot_A = vam / den, vap / den, amag
-    else:
-        vm, vp, n_dot_A = _dot(relm, n_pair), _dot(relp, n_pair), _dot(n_pair, A)
-    if wave_speed == "rusanov_abs":
-        S = jnp.maximum(jnp.abs(vm) + cm, jnp.abs(vp) + cp)
-    elif wave_speed == "printed_ch3":
-        S = jnp.maximum(vp + cp, vm - cm)
-    else:  # printed_ch4: c_ij and (u - w).n from the interface average
-        v = 0.5 * (vm + vp)
-        cij = 0.5 * (cm + cp)
-        S = jnp.maximum(jnp.maximum(v + cij, v - cij), v)
+    vm, vp, n_dot_A = DISSIPATION_NORMALS.get(normal, "scheme.dissipation_normal").project(relm, relp, A, n_pair)
+    S = WAVE_SPEEDS.get(wave_speed, "scheme.wave_speed").speed(vm, vp, cm, cp)
     diss = 0.5 * (S * n_dot_A)
     out = [0.5 * (Um[0] * vam + Up[0] * vap) - diss * (Up[0] - Um[0])]
     for k in range(d):

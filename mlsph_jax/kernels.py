@@ -66,7 +66,7 @@ def safe_norm(dx: jax.Array) -> jax.Array:
     return jnp.where(pos, jnp.sqrt(jnp.where(pos, r2, 1.0)), 0.0)
 
 
-KERNELS: Registry[Kernel] = Registry("kernel")
+KERNELS: Registry[Kernel] = Registry("scheme.kernel")
 
 
 def _pos(a):

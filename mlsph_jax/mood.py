@@ -40,46 +40,81 @@ and whether flags were left unresolved after ``mood_max_iter`` iterations.
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 
 from .eos import get_eos, to_primitive
-from .scheme import NAD_VARIABLES, Scheme
+from .registry import Registry
 from .state import Kind, Params, Particles
 
-__all__ = ["NAD_VARIABLES", "admissible", "detect", "mood_substep", "nad_fields", "stencil_bounds"]
+__all__ = ["LIMITERS", "NAD_VARIABLES", "DELTA_FLOORS", "admissible", "detect", "mood_substep", "nad_fields",
+           "stencil_bounds"]
+
+LIMITERS: Registry = Registry("scheme.limiter", protocol=("substep", "needs_high_order"),
+                              doc="a-posteriori limiters of the forward-Euler sub-step of each stage")
+NAD_VARIABLES: Registry = Registry("scheme.mood_variables", protocol=("fields",),
+                                   doc="variables checked by MOOD's NAD detector")
+DELTA_FLOORS: Registry = Registry("scheme.mood_delta_floor", protocol=("floor",), doc="NAD tolerance floors")
 
 
-def admissible(U, scheme: Scheme, params: Params):
-    """PAD: finite, positive density and an EOS-admissible pressure, per particle ``[N]``."""
+def admissible(U, scheme, params: Params):
+    """PAD: finite state and the EOS' own admissibility (rho > 0 always; p > 0 for the ideal gas,
+    p + p_c > 0 for the stiffened gas, :attr:`mlsph_jax.eos.EOS.admissible`), per particle ``[N]``."""
     eos = get_eos(scheme.eos)
     prim = to_primitive(U, eos, params)
-    ok = jnp.all(jnp.isfinite(U), axis=1) & (U[:, 0] > 0)
-    if scheme.eos == "ideal_gas":
-        ok = ok & (prim.p > 0)
-    elif scheme.eos == "stiffened_gas":
-        ok = ok & (prim.p + params["eos.pc"] > 0)
+    ok = jnp.all(jnp.isfinite(U), axis=1) & eos.admissible(prim.rho, prim.p, params)
     return ok & jnp.isfinite(prim.p)
 
 
-def nad_fields(U, scheme: Scheme, params: Params):
+@dataclasses.dataclass(frozen=True)
+class NADVariable:
+    """A variable checked by NAD: ``fields(U, prim, eos) -> [N, k]`` columns, or ``None`` where the
+    EOS does not have it."""
+
+    extract: object
+    description: str = ""
+
+    def fields(self, U, prim, eos):
+        return self.extract(U, prim, eos)
+
+
+NAD_VARIABLES.register("rho", NADVariable(lambda U, pr, eos: pr.rho[:, None], "density"))
+NAD_VARIABLES.register("p", NADVariable(lambda U, pr, eos: pr.p[:, None], "pressure"))
+NAD_VARIABLES.register("vel", NADVariable(lambda U, pr, eos: pr.vel, "every velocity component"))
+NAD_VARIABLES.register("e", NADVariable(lambda U, pr, eos: pr.e[:, None] if eos.has_energy else None,
+                                        "specific internal energy (EOS with an energy equation)"))
+NAD_VARIABLES.register("conservative", NADVariable(lambda U, pr, eos: U, "every component of U"))
+
+
+class ScaledFloor:
+    """delta_abs max_i |phi_i|: the variable's magnitude over all particles (unit-free; not zero
+    where a Tait pressure passes through 0; SPEC item 21, default)."""
+
+    @staticmethod
+    def floor(delta_abs, lo, hi):
+        return delta_abs * jnp.max(jnp.maximum(jnp.abs(lo), jnp.abs(hi)), axis=0)
+
+
+class AbsoluteFloor:
+    """delta_abs as printed in thesis eq. 3.13, in the variable's units (Pa, kg/m^3)."""
+
+    @staticmethod
+    def floor(delta_abs, lo, hi):
+        return delta_abs
+
+
+DELTA_FLOORS.register("scaled", ScaledFloor())
+DELTA_FLOORS.register("absolute", AbsoluteFloor())
+
+
+def nad_fields(U, scheme, params: Params):
     """The variables checked by NAD as columns ``[N, nv]`` (``scheme.mood_variables``)."""
     eos = get_eos(scheme.eos)
     prim = to_primitive(U, eos, params)
-    cols = []
-    for name in scheme.mood_variables:
-        if name == "rho":
-            cols.append(prim.rho[:, None])
-        elif name == "p":
-            cols.append(prim.p[:, None])
-        elif name == "vel":
-            cols.append(prim.vel)
-        elif name == "e":
-            if eos.has_energy:
-                cols.append(prim.e[:, None])
-        elif name == "conservative":
-            cols.append(U)
-    return jnp.concatenate(cols, axis=1)
+    cols = [NAD_VARIABLES.get(name, "scheme.mood_variables").fields(U, prim, eos) for name in scheme.mood_variables]
+    return jnp.concatenate([c for c in cols if c is not None], axis=1)
 
 
 def stencil_bounds(phi, idx, mask):
@@ -93,7 +128,7 @@ def stencil_bounds(phi, idx, mask):
     return lo, hi
 
 
-def detect(U_cand, bounds, scheme: Scheme, params: Params):
+def detect(U_cand, bounds, scheme, params: Params):
     """Flags ``[N]`` of the detector chain (PAD, then NAD against ``bounds = (lo, hi)``)."""
     U_cand = jax.lax.stop_gradient(U_cand)
     if scheme.mood_pad:
@@ -102,9 +137,8 @@ def detect(U_cand, bounds, scheme: Scheme, params: Params):
         bad = ~jnp.all(jnp.isfinite(U_cand), axis=1)
     if scheme.mood_nad:
         lo, hi = bounds
-        floor = scheme.mood_delta_abs
-        if scheme.mood_delta_floor == "scaled":   # magnitude of each variable over all particles
-            floor = floor * jnp.max(jnp.maximum(jnp.abs(lo), jnp.abs(hi)), axis=0)
+        floor_rule = DELTA_FLOORS.get(scheme.mood_delta_floor, "scheme.mood_delta_floor")
+        floor = floor_rule.floor(scheme.mood_delta_abs, lo, hi)
         delta = jnp.maximum(floor, scheme.mood_delta_rel * (hi - lo))
         phi = nad_fields(U_cand, scheme, params)
         out = (phi < lo - delta) | (phi > hi + delta) | ~jnp.isfinite(phi)
@@ -112,7 +146,7 @@ def detect(U_cand, bounds, scheme: Scheme, params: Params):
     return bad
 
 
-def mood_substep(z: Particles, params: Params, dt, geom, scheme: Scheme, euler):
+def mood_substep(z: Particles, params: Params, dt, geom, scheme, euler):
     """The MOOD-limited forward-Euler sub-step of one stage.
 
     ``euler(z_with_ppd) -> (E, dz)`` computes the candidate for a PPD map (the caller's rhs and
@@ -144,3 +178,28 @@ def mood_substep(z: Particles, params: Params, dt, geom, scheme: Scheme, euler):
     (E, ppd, f, n), _ = jax.lax.scan(body, (E0, ppd0, f0, jnp.asarray(1, jnp.int32)), None,
                                      length=scheme.mood_max_iter)
     return E, ppd, n, jnp.any(f)
+
+
+@dataclasses.dataclass(frozen=True)
+class NoLimiter:
+    """No a-posteriori limiting: the candidate of the scheme's reconstruction degree is accepted."""
+
+    needs_high_order: bool = False
+
+    def substep(self, z: Particles, params: Params, dt, geom, scheme, euler):
+        """``(E, ppd, n_evals, unresolved)`` of the stage's forward-Euler sub-step."""
+        return euler(z), z.ppd, jnp.asarray(1, jnp.int32), jnp.asarray(False)
+
+
+@dataclasses.dataclass(frozen=True)
+class MOODLimiter:
+    """MOOD a-posteriori order reduction (module docstring; thesis §3.6.3)."""
+
+    needs_high_order: bool = True
+
+    def substep(self, z: Particles, params: Params, dt, geom, scheme, euler):
+        return mood_substep(z, params, dt, geom, scheme, euler)
+
+
+LIMITERS.register("none", NoLimiter())
+LIMITERS.register("mood", MOODLimiter())

@@ -48,13 +48,17 @@ import jax.numpy as jnp
 from . import approximation as apx
 from .approximation import mls
 from .approximation import rows as _rows
-from .eos import conservative_components, get_eos, primitive_vector, to_primitive
-from .errors import InputError
-from .flux import ale_flux_dot, rusanov_components
+from .eos import get_eos, to_primitive
+from .flux import ale_flux_dot
+from .frames import frame_velocity, shifting_velocity
 from .kernels import get_kernel
+from .reconstruction import reconstruct
 from .scheme import Scheme
 from .state import Domain, Kind, Params, Particles
+from .stencil import flat_reverse_index
 from .viscous import viscous_terms
+
+__all__ = ["Geometry", "evaluate", "frame_velocity", "geometry", "reconstruct", "rhs", "shifting_velocity", "source"]
 
 
 @jax.tree_util.register_dataclass
@@ -91,24 +95,6 @@ def _box(domain: Domain):
     return jnp.asarray(domain.length), jnp.asarray(domain.periodic)
 
 
-def _shepard_weights(dx, h, jsafe, mask, vol, kernel):
-    hij = 0.5 * (h[:, None] + h[jsafe])
-    w = kernel.w_vec(dx, hij) * jnp.where(mask, vol[jsafe], 0.0)
-    return w / jnp.sum(w, axis=1, keepdims=True)
-
-
-def _reverse_gather(a, jsafe, rev):
-    """``a[j, rev[i, k]]`` for ``a[N, K, ...]`` (the value of the reverse pair) as a flat gather."""
-    n, k = a.shape[:2]
-    flat = a.reshape((n * k,) + a.shape[2:])
-    return flat[_flat_reverse_index(jsafe, rev, k)]
-
-
-def _flat_reverse_index(jsafe, rev, k: int):
-    dt = jnp.int64 if jsafe.shape[0] * k >= 2**31 else jnp.int32
-    return jsafe.astype(dt) * k + rev.astype(dt)
-
-
 def geometry(x, vol, nl, scheme: Scheme, domain: Domain) -> Geometry:
     """Area vectors, offsets, reconstruction coefficients and interpolation weights."""
     n, d = x.shape
@@ -120,23 +106,8 @@ def geometry(x, vol, nl, scheme: Scheme, domain: Domain) -> Geometry:
     jsafe = jnp.where(mask, idx, self_i)
     pair_mask = mask & (idx != self_i)
     kern = get_kernel(scheme.kernel)
-    coeffs = None
-    if scheme.method == "mlsph_ale":
-        aspec = scheme.area_spec()
-        ops = apx.build_from_offsets(dx, h, vol, idx, mask, aspec)
-        G = ops.gradients                      # grad N_j(x_i) = grad N_ji
-        G_rev = _reverse_gather(G, jsafe, rev)  # grad N_i(x_j) = grad N_ij
-        A = vol[:, None, None] * G - vol[jsafe][..., None] * G_rev      # thesis eq. 5.77
-        interp = ops.values
-        if aspec.with_coeffs:
-            coeffs = ops.coeffs
-    else:
-        hij = 0.5 * (h[:, None] + h[jsafe])
-        gradW = kern.grad(-dx, hij)            # grad_i W(x_i - x_j, h_ij)
-        A = 2.0 * vol[:, None, None] * vol[jsafe][..., None] * gradW    # thesis eq. 3.5 / 5.84
-        interp = None
-    if scheme.position_update == "shepard" or (interp is None and scheme.position_update == "mls"):
-        interp = _shepard_weights(dx, h, jsafe, mask, vol, kern)
+    A, values, coeffs = scheme.component("method").areas(dx, h, vol, idx, mask, jsafe, rev, scheme)
+    interp = scheme.component("position_update").weights(values, dx, h, jsafe, mask, vol, kern)
     if coeffs is None and scheme.needs_fit:
         coeffs = apx.build_from_offsets(dx, h, vol, idx, mask, scheme.reconstruction_spec(),
                                         coeffs_only=True).coeffs
@@ -144,107 +115,8 @@ def geometry(x, vol, nl, scheme: Scheme, domain: Domain) -> Geometry:
     return Geometry(idx, mask, rev, pair_mask, dx, A, h, coeffs, interp, nl.overflow)
 
 
-def frame_velocity(U, kind, scheme: Scheme, params: Params):
-    """w_i: zero (Eulerian) or the fluid velocity (Lagrangian and, before the shift of
-    :func:`shifting_velocity`, ALE); non-fluid particles do not move."""
-    eos = get_eos(scheme.eos)
-    if scheme.frame == "eulerian":
-        d = U.shape[1] - eos.n_vars(1) + 1
-        return jnp.zeros((U.shape[0], d), U.dtype)
-    vel = to_primitive(U, eos, params).vel
-    return jnp.where((kind == Kind.FLUID)[:, None], vel, 0.0)
-
-
-def shifting_velocity(w, geom: Geometry, kind, scheme: Scheme, vol=None):
-    """Particle-shifting drift dw_i of the ``ale_shift`` frame, w_i = u_i + dw_i (SPEC §9 [REC],
-    within the ALE frame of thesis T:L1563-1565; the thesis does not print its law, so it is
-    pluggable, ``scheme.shift_law``):
-
-    * ``xu`` (Xu et al. 2009 type repulsion, the SPEC's default):
-      dw_i = C U_max / n_i sum_j (r_i / r_ij)^2 (x_i - x_j) / r_ij over the n_i neighbours strictly
-      inside i's support, r_i their mean distance;
-    * ``fickian`` (Lind et al. 2012 type): dw_i = -C U_max h_i sum_j V_j grad_i W(x_i - x_j, h_i),
-      down the gradient of the particle concentration; it goes to zero smoothly where a neighbour
-      crosses the support edge (the ``xu`` weights jump there).
-
-    U_max = max |w| over fluid particles and C = ``scheme.shift_coefficient``.  Both vanish on
-    regular lattices and push particles apart where they cluster; because the fluxes are
-    computed relative to w (ALE, eq. 4.36 and 4.32), no interpolation correction is needed.
-    Ghost/frozen neighbours repel too (walls)."""
-    r2 = jnp.sum(geom.dx * geom.dx, axis=-1)
-    reach = scheme.support * geom.h[:, None]
-    # strictly inside the support (relative margin): lattice neighbours at exactly the cut-off
-    # are in or out of the list by round-off, which must not break the lattice's symmetry
-    pos = geom.pair_mask & (r2 > 0) & (r2 < (reach * (1.0 - 1e-9)) ** 2)
-    if scheme.shift_law == "fickian":
-        if vol is None:
-            raise InputError("shifting_velocity(shift_law='fickian') needs the particle volumes (vol=...)")
-        gradw = get_kernel(scheme.kernel).grad(-geom.dx, geom.h[:, None])          # grad_i W(x_i - x_j)
-        vj = vol[geom.jsafe]
-        drift = -geom.h[:, None] * jnp.sum(jnp.where(pos, vj, 0.0)[..., None] * gradw, axis=1)
-    else:
-        r = jnp.sqrt(jnp.where(pos, r2, 1.0))
-        cnt = jnp.maximum(jnp.sum(pos, axis=1), 1)
-        rbar = jnp.sum(jnp.where(pos, r, 0.0), axis=1) / cnt
-        wt = jnp.where(pos, (rbar[:, None] / r) ** 2 / r, 0.0)
-        drift = -jnp.sum(wt[..., None] * geom.dx, axis=1) / cnt[:, None]   # dx = x_j - x_i
-    fluid = kind == Kind.FLUID
-    umax = jnp.max(jnp.where(fluid, jnp.sqrt(jnp.sum(w * w, axis=1) + 1e-300), 0.0))
-    return jnp.where(fluid[:, None], scheme.shift_coefficient * umax * drift, 0.0)
-
-
 def _cols(a):
     return [a[..., k] for k in range(a.shape[-1])]
-
-
-def _own_states(F, geom: Geometry, degree: int, taylor: bool):
-    """i-side midpoint states ``own[N, K, nv]``: p(xi_ij)^T C_i F_S (``taylor``: F_i + P_i(xi) -
-    P_i(0)), with xi_ij = (x_ij - x_i)/h_i; one blocked pass (fit and evaluation)."""
-    n, k = geom.idx.shape
-    nv = F.shape[1]
-    jsafe = geom.jsafe
-    C = geom.coeffs
-    m = C.shape[1]
-    Fc = _cols(F)
-
-    def block(s, b):
-        jb = _rows(jsafe, s, b)
-        Cb = _rows(C, s, b)
-        Fj = [c[jb] for c in Fc]
-        a = mls.stencil_sums([Cb[:, mm, :] * Fj[v] for mm in range(m) for v in range(nv)])
-        a = [t[:, None] for t in a]                            # a_i = C_i F_S, [b, 1] each
-        dx = _rows(geom.dx, s, b)
-        hb = _rows(geom.h, s, b)[:, None]
-        P = mls.monomial_planes([(0.5 * dx[..., c]) / hb for c in range(dx.shape[-1])], degree)
-        own = []
-        for v in range(nv):
-            o = a[v]
-            for mm in range(1, m):
-                o = o + P[mm] * a[mm * nv + v]
-            if taylor:
-                o = _rows(Fc[v], s, b)[:, None] + o - a[v]       # F_i + P_i(xi) - P_i(0)
-            own.append(jnp.broadcast_to(o, jb.shape))
-        return (jnp.stack(own, axis=-1),)
-
-    (own,) = apx.row_blocks(block, n, apx.block_rows(n, k), [((n, k, nv), F.dtype)])
-    return own
-
-
-def reconstruct(F, geom: Geometry, degree: int, taylor: bool, ppd):
-    """Riemann states of the field ``F[N, nv]`` at the pair midpoints: (i side, j side) ``[N,K,nv]``.
-
-    ``degree`` 0 is first order.  Pairs with min(ppd_i, ppd_j) == 0 fall back to first order
-    (the MOOD parachute).  (:func:`rhs` evaluates the same states block by block.)
-    """
-    jsafe = geom.jsafe
-    Fm0 = jnp.broadcast_to(F[:, None, :], geom.dx.shape[:2] + F.shape[1:])
-    Fp0 = F[jsafe]
-    if degree == 0:
-        return Fm0, Fp0
-    own = _own_states(F, geom, degree, taylor)
-    other = _reverse_gather(own, jsafe, geom.rev)             # j-side state = i-side of (j, i)
-    high = (jnp.minimum(ppd[:, None], ppd[jsafe]) > 0)[..., None]
-    return jnp.where(high, own, Fm0), jnp.where(high, other, Fp0)
 
 
 def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme):
@@ -255,21 +127,24 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme):
     k = geom.idx.shape[1]
     U = q / vol[:, None]
     prim = to_primitive(U, eos, params)
-    w = frame_velocity(U, kind, scheme, params)
-    if scheme.frame == "ale_shift":
-        w = w + shifting_velocity(w, geom, kind, scheme, vol)
+    frame = scheme.component("frame")
+    w = frame.velocity(U, kind, eos, params)
+    dw = frame.drift(w, geom, kind, scheme, vol)
+    if dw is not None:
+        w = w + dw
     jsafe = geom.jsafe
-    eulerian = scheme.frame == "eulerian"
-    interp = not eulerian and scheme.position_update != "w_i"
+    eulerian = not frame.moving
+    interp = not eulerian and geom.interp is not None
 
-    primitive = scheme.reconstruction_variables == "primitive"
-    F = primitive_vector(U, eos, params) if primitive else U
+    variables = scheme.component("reconstruction_variables")
+    flux = scheme.component("flux")
+    normal = scheme.component("dissipation_normal")
+    F = variables.from_conservative(U, eos, params)
     nv = F.shape[1]
     degree = scheme.reconstruction_degree
     Fc, wc, ppd = _cols(F), _cols(w), particles.ppd
-    taylor = scheme.reconstruction == "taylor"
     if degree > 0:
-        own = _own_states(F, geom, degree, taylor)             # i-side states, [N, K, nv]
+        own = scheme.component("reconstruction").midpoint_states(F, geom, degree)   # i-side states, [N, K, nv]
         own_flat = own.reshape(n * k, nv)
 
     def block(s, b):
@@ -277,7 +152,7 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme):
         Fi = [_rows(c, s, b)[:, None] for c in Fc]
         Fj = [c[jb] for c in Fc]
         if degree > 0:
-            flat = _flat_reverse_index(jb, _rows(geom.rev, s, b), k)
+            flat = flat_reverse_index(jb, _rows(geom.rev, s, b), k)
             ob = _cols(_rows(own, s, b))
             oj = _cols(own_flat[flat])                                       # own[j, rev]
             high = jnp.minimum(_rows(ppd, s, b)[:, None], ppd[jb]) > 0
@@ -285,9 +160,8 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme):
             Fp = [jnp.where(high, oj[v], Fj[v]) for v in range(nv)]
         else:
             Fm, Fp = [jnp.broadcast_to(f, jb.shape) for f in Fi], Fj
-        if primitive:
-            Fm = conservative_components(Fm, eos, params)
-            Fp = conservative_components(Fp, eos, params)
+        Fm = variables.to_conservative(Fm, eos, params)
+        Fp = variables.to_conservative(Fp, eos, params)
         A = _cols(_rows(geom.A, s, b))
         if eulerian:
             w_ij = None
@@ -296,7 +170,7 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme):
             wj = [c[jb] for c in wc]
             w_ij = [0.5 * (a + c) for a, c in zip(wi, wj, strict=True)]
         n_pair = None
-        if scheme.dissipation_normal == "pair":
+        if normal.needs_pair_vector:
             dx = _cols(_rows(geom.dx, s, b))
             r2 = dx[0] * dx[0]
             for c in dx[1:]:
@@ -304,8 +178,7 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme):
             pos = r2 > 0
             r = jnp.where(pos, jnp.sqrt(jnp.where(pos, r2, 1.0)), 0.0)
             n_pair = [c / jnp.where(r > 0, r, 1.0) for c in dx]
-        GA = rusanov_components(Fm, Fp, w_ij, A, n_pair, eos, params,
-                                wave_speed=scheme.wave_speed, normal=scheme.dissipation_normal)
+        GA = flux.pair_flux(Fm, Fp, w_ij, A, n_pair, eos, params, scheme)
         pm = _rows(geom.pair_mask, s, b)
         terms = [jnp.where(pm, g, 0.0) for g in GA] + A
         if not eulerian:

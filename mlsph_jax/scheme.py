@@ -11,32 +11,37 @@ import dataclasses
 from collections.abc import Mapping
 
 from .approximation import APPROXIMATIONS, ApproxSpec
-from .config import METHOD_BETA
-from .eos import get_eos
+from .eos import EOS_REGISTRY, get_eos
 from .errors import InputError
-from .flux import FLUXES, WAVE_SPEEDS
-from .kernels import get_kernel
+from .flux import DISSIPATION_NORMALS, FLUXES, WAVE_SPEEDS
+from .frames import FRAMES, POSITION_UPDATES, SHIFT_LAWS
+from .kernels import KERNELS, get_kernel
+from .methods import METHODS, default_beta
+from .mood import DELTA_FLOORS, LIMITERS, NAD_VARIABLES
+from .reconstruction import RECONSTRUCTION_VARIABLES, RECONSTRUCTIONS
 from .registry import Registry
+from .viscous import STRESSES
 
-NAD_VARIABLES = ("rho", "p", "vel", "e", "conservative")
+__all__ = ["COMPONENTS", "Scheme", "default_beta"]
 
-METHODS = Registry("scheme.method")
-METHODS.register("mlsph_ale")("MLSPH-ALE: MLS area vectors (thesis eq. 4.36) and direct MLS reconstruction (eq. 4.39)")
-METHODS.register("sph_ale")(
-    "SPH-ALE: kernel area vectors 2 V_i V_j grad W_ij (eq. 3.5) and Taylor reconstruction (eq. 3.11)")
-FRAMES = Registry("scheme.frame")
-FRAMES.register("eulerian")("w = 0")
-FRAMES.register("lagrangian")("w = u")
-FRAMES.register("ale_shift")("w = u + dw (particle shifting, SPEC §9)")
-SHIFT_LAWS = Registry("scheme.shift_law")
-SHIFT_LAWS.register("xu")("repulsion C U_max sum_j (r_i/r_ij)^2 e_ji / n_i (Xu et al. 2009 type, SPEC §9)")
-SHIFT_LAWS.register("fickian")("-C U_max h_i sum_j V_j grad W_ij (Lind et al. 2012 type; smooth at the support edge)")
-POSITION_UPDATES = ("mls", "shepard", "w_i")
-RECONSTRUCTIONS = ("taylor", "mls_direct")
-LIMITERS = Registry("scheme.limiter")
-LIMITERS.register("none")("no limiter")
-LIMITERS.register("mood")("MOOD a-posteriori order reduction")
-
+#: Scheme field -> the registry of the component it names (the only lists of allowed names).
+COMPONENTS: dict[str, Registry] = {
+    "method": METHODS,
+    "approximation": APPROXIMATIONS,
+    "kernel": KERNELS,
+    "reconstruction": RECONSTRUCTIONS,
+    "reconstruction_variables": RECONSTRUCTION_VARIABLES,
+    "flux": FLUXES,
+    "wave_speed": WAVE_SPEEDS,
+    "dissipation_normal": DISSIPATION_NORMALS,
+    "frame": FRAMES,
+    "shift_law": SHIFT_LAWS,
+    "position_update": POSITION_UPDATES,
+    "limiter": LIMITERS,
+    "stress": STRESSES,
+    "mood_delta_floor": DELTA_FLOORS,
+    "eos": EOS_REGISTRY,
+}
 
 @dataclasses.dataclass(frozen=True)
 class Scheme:
@@ -100,52 +105,44 @@ class Scheme:
     rcond: float = 1e-6
 
     def __post_init__(self):
-        METHODS.get(self.method, "scheme.method")
-        APPROXIMATIONS.get(self.approximation, "scheme.approximation")
-        get_kernel(self.kernel)
-        FLUXES.get(self.flux, "scheme.flux")
-        WAVE_SPEEDS.get(self.wave_speed, "scheme.wave_speed")
-        FRAMES.get(self.frame, "scheme.frame")
-        SHIFT_LAWS.get(self.shift_law, "scheme.shift_law")
+        for field, reg in COMPONENTS.items():
+            reg.get(getattr(self, field), "eos.kind" if field == "eos" else f"scheme.{field}")
+        object.__setattr__(self, "mood_variables", tuple(self.mood_variables))
+        if not self.mood_variables:
+            raise InputError(f"invalid scheme.mood_variables={list(self.mood_variables)!r}; allowed: a non-empty "
+                             f"list of {', '.join(NAD_VARIABLES.names())}")
+        for v in self.mood_variables:
+            NAD_VARIABLES.get(v, "scheme.mood_variables")
         if self.heat_conduction and not get_eos(self.eos).has_energy:
             raise InputError(f"invalid heat_conduction=True with eos={self.eos!r}: it has no energy equation; "
-                             "allowed: False, or an EOS with an energy equation (ideal_gas, stiffened_gas)")
-        LIMITERS.get(self.limiter, "scheme.limiter")
-        get_eos(self.eos)
+                             "allowed: False, or an EOS with an energy equation ("
+                             f"{', '.join(n for n, e in EOS_REGISTRY.items() if e.has_energy)})")
         for name in ("degree", "reconstruction_degree"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 3:
                 raise InputError(f"invalid scheme.{name}={v!r}; allowed: an integer in 0..3")
         if not self.beta > 0:
             raise InputError(f"invalid scheme.beta={self.beta!r}; allowed: > 0")
-        if self.dissipation_normal not in ("area", "pair"):
-            raise InputError(f"invalid scheme.dissipation_normal={self.dissipation_normal!r}; allowed: area, pair")
-        if self.reconstruction not in RECONSTRUCTIONS:
-            raise InputError(f"invalid scheme.reconstruction={self.reconstruction!r}; "
-                             f"allowed: {', '.join(RECONSTRUCTIONS)}")
-        if self.reconstruction_variables not in ("conservative", "primitive"):
-            raise InputError(f"invalid scheme.reconstruction_variables={self.reconstruction_variables!r}; "
-                             "allowed: conservative, primitive")
-        object.__setattr__(self, "mood_variables", tuple(self.mood_variables))
-        bad = [v for v in self.mood_variables if v not in NAD_VARIABLES]
-        if bad or not self.mood_variables:
-            raise InputError(f"invalid scheme.mood_variables={list(self.mood_variables)!r}; allowed: a non-empty "
-                             f"list of {', '.join(NAD_VARIABLES)}")
         if not (self.mood_delta_abs >= 0 and self.mood_delta_rel >= 0):
             raise InputError(f"invalid scheme.mood_delta_abs={self.mood_delta_abs!r} / mood_delta_rel="
                              f"{self.mood_delta_rel!r}; allowed: >= 0")
-        if self.mood_delta_floor not in ("scaled", "absolute"):
-            raise InputError(f"invalid scheme.mood_delta_floor={self.mood_delta_floor!r}; allowed: scaled, absolute")
         if isinstance(self.mood_max_iter, bool) or not isinstance(self.mood_max_iter, int) or self.mood_max_iter < 1:
             raise InputError(f"invalid scheme.mood_max_iter={self.mood_max_iter!r}; allowed: an integer >= 1")
-        if self.limiter == "mood" and self.reconstruction_degree == 0:
-            raise InputError("invalid scheme.limiter='mood' with scheme.reconstruction_degree=0; allowed: MOOD "
-                             "needs a high-order candidate (reconstruction_degree 1..3) to reduce")
-        if self.stress not in ("stokes", "incompressible"):
-            raise InputError(f"invalid scheme.stress={self.stress!r}; allowed: stokes, incompressible")
-        if self.position_update not in POSITION_UPDATES:
-            raise InputError(f"invalid scheme.position_update={self.position_update!r}; "
-                             f"allowed: {', '.join(POSITION_UPDATES)}")
+        if self.component("limiter").needs_high_order and self.reconstruction_degree == 0:
+            raise InputError(f"invalid scheme.limiter={self.limiter!r} with scheme.reconstruction_degree=0; allowed: "
+                             "this limiter needs a high-order candidate (reconstruction_degree 1..3) to reduce")
+        for field in COMPONENTS:     # a component may check the rest of the scheme (e.g. a flux and its EOS)
+            check = getattr(self.component(field), "check_scheme", None)
+            if check is not None:
+                check(self)
+
+    def component(self, field: str):
+        """The registered object named by the scheme field ``field`` (e.g. ``scheme.component("flux")``)."""
+        try:
+            reg = COMPONENTS[field]
+        except KeyError:
+            raise InputError(f"unknown scheme component {field!r}; allowed: {', '.join(COMPONENTS)}") from None
+        return reg.get(getattr(self, field))
 
     @classmethod
     def from_config(cls, table: Mapping, eos_kind: str) -> Scheme:
@@ -153,13 +150,13 @@ class Scheme:
         kw = {f.name: table[f.name] for f in dataclasses.fields(cls) if f.name in table}
         kw.pop("neighbor_headroom", None)
         if not kw.get("beta"):
-            kw["beta"] = METHOD_BETA[kw.get("method", "mlsph_ale")]
+            kw["beta"] = default_beta(kw.get("method", "mlsph_ale"))
         return cls(**kw, eos=eos_kind)
 
     @property
     def moving(self) -> bool:
         """Whether particles move (neighbour lists and operators change every stage)."""
-        return self.frame != "eulerian"
+        return bool(self.component("frame").moving)
 
     @property
     def support(self) -> float:
@@ -184,7 +181,8 @@ class Scheme:
     def area_spec(self) -> ApproxSpec:
         """Shape functions of the MLSPH-ALE area vectors (coefficients kept when they can be
         reused for the reconstruction and the viscous gradients)."""
-        reuse = self.approximation == "mls" and self.degree == self.fit_degree
+        approx = self.component("approximation")
+        reuse = approx.has_coeffs and approx.basis_degree(self.degree) == self.fit_degree
         return ApproxSpec(self.approximation, self.degree, self.kernel, self.derivative, self.rcond,
                           with_coeffs=reuse and self.needs_fit)
 

@@ -25,26 +25,44 @@ likewise with kappa for heat conduction (:func:`mlsph_jax.integrate.cfl_dt`).
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax.numpy as jnp
 
 from .approximation import basis
 from .eos import get_eos
+from .registry import Registry
+from .stencil import reverse_gather
+
+STRESSES: Registry = Registry("scheme.stress", protocol=("tensor",), doc="viscous stress laws")
 
 
-def _reverse(a, jsafe, rev):
-    n, k = a.shape[:2]
-    flat = a.reshape((n * k,) + a.shape[2:])
-    return flat[jsafe * k + rev]
+@dataclasses.dataclass(frozen=True)
+class StokesStress:
+    """tau = mu (grad u + grad u^T - 2/3 (div u) I) (Stokes' hypothesis, thesis eq. 4.40)."""
+
+    def tensor(self, G, mu, d: int):
+        tau = G + jnp.swapaxes(G, -1, -2)
+        div = jnp.trace(G, axis1=-2, axis2=-1)
+        return mu * (tau - (2.0 / 3.0) * div[..., None, None] * jnp.eye(d, dtype=G.dtype))
+
+
+@dataclasses.dataclass(frozen=True)
+class IncompressibleStress:
+    """tau = mu (grad u + grad u^T) (thesis ch. 3 form, eq. 3.14)."""
+
+    def tensor(self, G, mu, d: int):
+        return mu * (G + jnp.swapaxes(G, -1, -2))
+
+
+STRESSES.register("stokes", StokesStress())
+STRESSES.register("incompressible", IncompressibleStress())
 
 
 def _flux_tensor(G, u, ge, mu, kappa, stress: str, has_energy: bool, d: int):
     """D[..., nv, d] from velocity gradient G[..., d, d] (G[a, b] = du_a/dx_b), velocity u[..., d]
     and (energy) gradient of e ge[..., d]."""
-    tau = G + jnp.swapaxes(G, -1, -2)
-    if stress == "stokes":
-        div = jnp.trace(G, axis1=-2, axis2=-1)
-        tau = tau - (2.0 / 3.0) * div[..., None, None] * jnp.eye(d, dtype=G.dtype)
-    tau = mu * tau
+    tau = STRESSES.get(stress, "scheme.stress").tensor(G, mu, d)
     rows = [jnp.zeros(G.shape[:-2] + (1, d), G.dtype), tau]
     if has_energy:
         e_flux = jnp.einsum("...ab,...a->...b", tau, u)
@@ -76,7 +94,7 @@ def viscous_terms(prim, geom, scheme, params, degree: int):
     kappa = params["physics.kappa"] if heat else 0.0
     ge, ge0 = (grad[..., d, :], grad0[:, d, :]) if heat else (None, None)
     D_own = _flux_tensor(grad[..., :d, :], val[..., :d], ge, mu, kappa, scheme.stress, eos.has_energy, d)
-    D_other = _reverse(D_own, jsafe, geom.rev)
+    D_other = reverse_gather(D_own, jsafe, geom.rev)
     D_pair = 0.5 * (D_own + D_other)
     if scheme.self_flux:
         D_i = _flux_tensor(grad0[:, :d, :], vel, ge0, mu, kappa, scheme.stress, eos.has_energy, d)

@@ -39,9 +39,8 @@ from ..registry import Registry
 from ..state import minimum_image
 from . import basis, mls
 
-APPROXIMATIONS: Registry[str] = Registry("approximation")
-for _name in ("kernel", "shepard", "corrected", "mls"):
-    APPROXIMATIONS.register(_name)(_name)
+APPROXIMATIONS: Registry = Registry("scheme.approximation", protocol=("build", "basis_degree", "has_coeffs"),
+                                    doc="shape functions on the stencil")
 
 DERIVATIVES = ("full", "fixed_centre")
 
@@ -71,13 +70,14 @@ class ApproxSpec:
             raise InputError(f"invalid rcond={self.rcond!r}; allowed: 0 <= rcond < 1")
 
     @property
-    def mls_degree(self) -> int:
-        """Basis degree used by the MLS path (``shepard`` is degree 0)."""
-        return 0 if self.approximation == "shepard" else self.degree
+    def mls_degree(self) -> int | None:
+        """Polynomial basis degree of the approximation (``shepard``: 0; kernel methods: None)."""
+        return APPROXIMATIONS.get(self.approximation).basis_degree(self.degree)
 
     @property
     def is_mls(self) -> bool:
-        return self.approximation in ("mls", "shepard")
+        """Whether the shape functions come from an MLS fit (and can provide fit coefficients)."""
+        return APPROXIMATIONS.get(self.approximation).has_coeffs
 
 
 @jax.tree_util.register_dataclass
@@ -171,50 +171,61 @@ def build_from_offsets(dx, h, vol, idx, mask, spec: ApproxSpec, *,
     ``coeffs_only`` (MLS with coefficients): skip assembling values and gradients (returned as
     ``None``) when only the fit coefficients are needed.
     """
+    return APPROXIMATIONS.get(spec.approximation, "approximation").build(dx, h, vol, idx, mask, spec,
+                                                                         coeffs_only=coeffs_only)
+
+
+def _mls_operators(dx, h, vol, idx, mask, spec: ApproxSpec, coeffs_only: bool) -> ShapeOperators:
+    """MLS shape functions of degree ``spec.mls_degree`` (:mod:`.mls`), blocked over rows."""
     kern = get_kernel(spec.kernel)
     n, k, d = dx.shape
-    if spec.is_mls:
-        q = spec.mls_degree
-        m = basis.basis_size(q, d)
-        if m <= mls.UNROLL_MAX:
-            # unrolled small bases, whole row blocks at once
-            f = functools.partial(mls.operators_block, kernel=kern, degree=q, rcond=spec.rcond,
-                                  derivative=spec.derivative, with_coeffs=spec.with_coeffs)
-            block = block_rows(n, k)
-            if coeffs_only and spec.with_coeffs:
-                f = functools.partial(f, derivative="fixed_centre")
+    q = spec.mls_degree
+    m = basis.basis_size(q, d)
+    if m <= mls.UNROLL_MAX:
+        # unrolled small bases, whole row blocks at once
+        f = functools.partial(mls.operators_block, kernel=kern, degree=q, rcond=spec.rcond,
+                              derivative=spec.derivative, with_coeffs=spec.with_coeffs)
+        block = block_rows(n, k)
+        if coeffs_only and spec.with_coeffs:
+            f = functools.partial(f, derivative="fixed_centre")
 
-                def cblk(s, b):
-                    _, _, coeffs, deg = f(rows(dx, s, b), rows(mask, s, b), rows(h, s, b))
-                    return deg, coeffs
+            def cblk(s, b):
+                _, _, coeffs, deg = f(rows(dx, s, b), rows(mask, s, b), rows(h, s, b))
+                return deg, coeffs
 
-                deg, coeffs = row_blocks(cblk, n, block, [((n,), jnp.int32), ((n, m, k), dx.dtype)])
-                return ShapeOperators(None, None, coeffs, h, deg)
-        else:
-            # large bases (3D cubic, m = 20): per-particle solves, vmapped over row blocks so the
-            # working set (a few [rows, K, m] planes with d tangents) stays bounded for any N
-            f = jax.vmap(functools.partial(mls.particle_operators, kernel=kern, degree=q,
-                                           rcond=spec.rcond, derivative=spec.derivative,
-                                           with_coeffs=spec.with_coeffs))
-            block = max(block_rows(n, k), min(n, VMAP_BLOCK_ROWS))
-        outputs = [((n, k), dx.dtype), ((n, k, d), dx.dtype), ((n,), jnp.int32)]
-        if spec.with_coeffs:
-            outputs.append(((n, m, k), dx.dtype))
+            deg, coeffs = row_blocks(cblk, n, block, [((n,), jnp.int32), ((n, m, k), dx.dtype)])
+            return ShapeOperators(None, None, coeffs, h, deg)
+    else:
+        # large bases (3D cubic, m = 20): per-particle solves, vmapped over row blocks so the
+        # working set (a few [rows, K, m] planes with d tangents) stays bounded for any N
+        f = jax.vmap(functools.partial(mls.particle_operators, kernel=kern, degree=q,
+                                       rcond=spec.rcond, derivative=spec.derivative,
+                                       with_coeffs=spec.with_coeffs))
+        block = max(block_rows(n, k), min(n, VMAP_BLOCK_ROWS))
+    outputs = [((n, k), dx.dtype), ((n, k, d), dx.dtype), ((n,), jnp.int32)]
+    if spec.with_coeffs:
+        outputs.append(((n, m, k), dx.dtype))
 
-        def blk(s, b):
-            values, grads, coeffs, deg = f(rows(dx, s, b), rows(mask, s, b), rows(h, s, b))
-            return (values, grads, deg) + ((coeffs,) if spec.with_coeffs else ())
+    def blk(s, b):
+        values, grads, coeffs, deg = f(rows(dx, s, b), rows(mask, s, b), rows(h, s, b))
+        return (values, grads, deg) + ((coeffs,) if spec.with_coeffs else ())
 
-        out = row_blocks(blk, n, block, outputs)
-        return ShapeOperators(out[0], out[1], out[3] if spec.with_coeffs else None, h, out[2])
+    out = row_blocks(blk, n, block, outputs)
+    return ShapeOperators(out[0], out[1], out[3] if spec.with_coeffs else None, h, out[2])
 
+
+def _kernel_operators(dx, h, vol, idx, mask, spec: ApproxSpec, corrected: bool) -> ShapeOperators:
+    """Kernel shape functions W(x_i - x_j, h_ij) V_j, or (``corrected``) Shepard values with the
+    renormalised gradient (module docstring)."""
+    kern = get_kernel(spec.kernel)
+    n = dx.shape[0]
     jsafe = jnp.where(mask, idx, jnp.arange(n)[:, None])
     hij = 0.5 * (h[:, None] + h[jsafe])
     vj = jnp.where(mask, vol[jsafe], 0.0)
     w = kern.w_vec(dx, hij) * vj
     kgrad = kern.grad(-dx, hij) * vj[..., None]  # grad_x W(x - x_j) at x = x_i
     none_deg = jnp.full((n,), -1, jnp.int32)
-    if spec.approximation == "kernel":
+    if not corrected:
         return ShapeOperators(w, kgrad, None, h, none_deg)
 
     # corrected: Shepard values, renormalised gradients with the partition of nullity
@@ -232,6 +243,42 @@ def build_from_offsets(dx, h, vol, idx, mask, spec: ApproxSpec, *,
     g = g - is_self[..., None] * jnp.sum(g, axis=1, keepdims=True)
     g = jnp.where(good[:, None, None], g, kgrad - is_self[..., None] * jnp.sum(kgrad, axis=1, keepdims=True))
     return ShapeOperators(values, g, None, h, none_deg)
+
+
+@dataclasses.dataclass(frozen=True)
+class MLSApproximation:
+    """Moving least squares of degree ``scheme.degree`` (or a fixed degree: ``shepard`` is MLS with
+    the constant basis), full or fixed-centre derivative, per-particle degree fallback (:mod:`.mls`)."""
+
+    fixed_degree: int | None = None
+    has_coeffs: bool = True
+
+    def basis_degree(self, degree: int) -> int:
+        return self.fixed_degree if self.fixed_degree is not None else degree
+
+    def build(self, dx, h, vol, idx, mask, spec: ApproxSpec, coeffs_only: bool = False) -> ShapeOperators:
+        return _mls_operators(dx, h, vol, idx, mask, spec, coeffs_only)
+
+
+@dataclasses.dataclass(frozen=True)
+class KernelApproximation:
+    """Plain SPH kernel shape functions N_j = W(x - x_j, h_ij) V_j, or (``corrected``) the
+    Randles-Libersky renormalised gradient with Shepard values."""
+
+    corrected: bool = False
+    has_coeffs: bool = False
+
+    def basis_degree(self, degree: int) -> None:
+        return None
+
+    def build(self, dx, h, vol, idx, mask, spec: ApproxSpec, coeffs_only: bool = False) -> ShapeOperators:
+        return _kernel_operators(dx, h, vol, idx, mask, spec, self.corrected)
+
+
+APPROXIMATIONS.register("mls", MLSApproximation())
+APPROXIMATIONS.register("shepard", MLSApproximation(fixed_degree=0))
+APPROXIMATIONS.register("kernel", KernelApproximation())
+APPROXIMATIONS.register("corrected", KernelApproximation(corrected=True))
 
 
 def fit(ops: ShapeOperators, idx, mask, field):

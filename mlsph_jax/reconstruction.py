@@ -1,0 +1,139 @@
+"""Riemann states at the pair midpoints (registries ``scheme.reconstruction`` and
+``scheme.reconstruction_variables``).
+
+Each pair (i, j) meets at the midpoint x_ij = (x_i + x_j)/2, where the flux needs the state seen
+from i (U^-_ij) and from j (U^+_ij).  Both come from the fixed-centre MLS fit of degree
+``scheme.reconstruction_degree`` of each particle's stencil (coefficients ``geom.coeffs``,
+p((y - x_i)/h_i)^T C_i F_S); the j-side state is never recomputed: it is the i-side state of the
+reverse pair, gathered with the neighbour list's reverse-slot map.
+
+A **reconstruction** has ``midpoint_states(F, geom, degree) -> own[N, K, nv]`` (the i-side states):
+
+* ``taylor`` (default): F_i + P_i(xi_ij) - P_i(0), i.e. U_i plus the MLS derivatives of U at x_i
+  (thesis eq. 3.11); stable on irregular layouts;
+* ``mls_direct``: the fit itself, P_i(xi_ij) (thesis eq. 4.39 read literally, SPEC §13.1 item 6);
+  unstable on jittered layouts (docs/architecture.md).
+
+**Reconstruction variables** have ``from_conservative(U, eos, params) -> F[N, nv]`` (what is
+reconstructed) and ``to_conservative(F_list, eos, params) -> U_list`` (back, on lists of component
+arrays): ``conservative`` (identity) or ``primitive`` (rho, u, p).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax.numpy as jnp
+
+from . import approximation as apx
+from .approximation import mls
+from .approximation import rows as _rows
+from .eos import conservative_components, primitive_vector
+from .registry import Registry
+from .stencil import reverse_gather
+
+RECONSTRUCTIONS: Registry = Registry("scheme.reconstruction", protocol=("midpoint_states",),
+                                     doc="Riemann-state reconstruction at the pair midpoints")
+RECONSTRUCTION_VARIABLES: Registry = Registry("scheme.reconstruction_variables",
+                                              protocol=("from_conservative", "to_conservative"),
+                                              doc="variables that are reconstructed")
+
+
+def _cols(a):
+    return [a[..., k] for k in range(a.shape[-1])]
+
+
+def fitted_midpoint_states(F, geom, degree: int, relative: bool):
+    """i-side midpoint states ``own[N, K, nv]``: p(xi_ij)^T C_i F_S (``relative``: F_i + P_i(xi) -
+    P_i(0)), with xi_ij = (x_ij - x_i)/h_i; one blocked pass (fit and evaluation)."""
+    n, k = geom.idx.shape
+    nv = F.shape[1]
+    jsafe = geom.jsafe
+    C = geom.coeffs
+    m = C.shape[1]
+    Fc = _cols(F)
+
+    def block(s, b):
+        jb = _rows(jsafe, s, b)
+        Cb = _rows(C, s, b)
+        Fj = [c[jb] for c in Fc]
+        a = mls.stencil_sums([Cb[:, mm, :] * Fj[v] for mm in range(m) for v in range(nv)])
+        a = [t[:, None] for t in a]                            # a_i = C_i F_S, [b, 1] each
+        dx = _rows(geom.dx, s, b)
+        hb = _rows(geom.h, s, b)[:, None]
+        P = mls.monomial_planes([(0.5 * dx[..., c]) / hb for c in range(dx.shape[-1])], degree)
+        own = []
+        for v in range(nv):
+            o = a[v]
+            for mm in range(1, m):
+                o = o + P[mm] * a[mm * nv + v]
+            if relative:
+                o = _rows(Fc[v], s, b)[:, None] + o - a[v]       # F_i + P_i(xi) - P_i(0)
+            own.append(jnp.broadcast_to(o, jb.shape))
+        return (jnp.stack(own, axis=-1),)
+
+    (own,) = apx.row_blocks(block, n, apx.block_rows(n, k), [((n, k, nv), F.dtype)])
+    return own
+
+
+@dataclasses.dataclass(frozen=True)
+class TaylorReconstruction:
+    """U^-_ij = U_i + grad U_i . d + 1/2 d^T H_i d + ... with MLS derivatives (thesis eq. 3.11)."""
+
+    def midpoint_states(self, F, geom, degree: int):
+        return fitted_midpoint_states(F, geom, degree, relative=True)
+
+
+@dataclasses.dataclass(frozen=True)
+class DirectMLSReconstruction:
+    """U^-_ij = p((x_ij - x_i)/h_i)^T C_i U_S, the MLS fit at the midpoint (thesis eq. 4.39)."""
+
+    def midpoint_states(self, F, geom, degree: int):
+        return fitted_midpoint_states(F, geom, degree, relative=False)
+
+
+RECONSTRUCTIONS.register("taylor", TaylorReconstruction())
+RECONSTRUCTIONS.register("mls_direct", DirectMLSReconstruction())
+
+
+@dataclasses.dataclass(frozen=True)
+class ConservativeVariables:
+    """Reconstruct U = (rho, rho u, rho E) itself."""
+
+    def from_conservative(self, U, eos, params):
+        return U
+
+    def to_conservative(self, F, eos, params):
+        return F
+
+
+@dataclasses.dataclass(frozen=True)
+class PrimitiveVariables:
+    """Reconstruct (rho, u, p) (Tait: (rho, u)) and convert the midpoint states back."""
+
+    def from_conservative(self, U, eos, params):
+        return primitive_vector(U, eos, params)
+
+    def to_conservative(self, F, eos, params):
+        return conservative_components(F, eos, params)
+
+
+RECONSTRUCTION_VARIABLES.register("conservative", ConservativeVariables())
+RECONSTRUCTION_VARIABLES.register("primitive", PrimitiveVariables())
+
+
+def reconstruct(F, geom, degree: int, taylor: bool, ppd):
+    """Riemann states of the field ``F[N, nv]`` at the pair midpoints: (i side, j side) ``[N,K,nv]``.
+
+    ``degree`` 0 is first order.  Pairs with min(ppd_i, ppd_j) == 0 fall back to first order
+    (the MOOD parachute).  (:func:`mlsph_jax.rhs.rhs` evaluates the same states block by block.)
+    """
+    jsafe = geom.jsafe
+    Fm0 = jnp.broadcast_to(F[:, None, :], geom.dx.shape[:2] + F.shape[1:])
+    Fp0 = F[jsafe]
+    if degree == 0:
+        return Fm0, Fp0
+    own = fitted_midpoint_states(F, geom, degree, taylor)
+    other = reverse_gather(own, jsafe, geom.rev)             # j-side state = i-side of (j, i)
+    high = (jnp.minimum(ppd[:, None], ppd[jsafe]) > 0)[..., None]
+    return jnp.where(high, own, Fm0), jnp.where(high, other, Fp0)
