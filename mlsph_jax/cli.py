@@ -53,17 +53,21 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="mlsph", description="Meshless finite-volume particle simulations (MLSPH-ALE).")
     p.add_argument("--version", action="version", version=f"mlsph-jax {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
-    r = sub.add_parser("run", help="run a case from a TOML config (default: Sod's shock tube)")
+    plug = argparse.ArgumentParser(add_help=False)
+    plug.add_argument("--plugin", action="append", default=[], metavar="FILE.py|MODULE",
+                      help="import a Python file or module first, e.g. one that registers your own flux, EOS or "
+                           "case (docs/extending.md); repeatable")
+    r = sub.add_parser("run", parents=[plug], help="run a case from a TOML config (default: Sod's shock tube)")
     r.add_argument("config", nargs="?", help="TOML config file (omit for the default case)")
     r.add_argument("--out", help="output folder (default: out/<config name>)")
     r.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", action="extend",
                    help="override config keys, e.g. --set case.n=400 scheme.reconstruction_degree=1")
     r.add_argument("--quiet", action="store_true", help="no progress bar and no result paragraph")
-    v = sub.add_parser("validate", help="check a config without running it")
+    v = sub.add_parser("validate", parents=[plug], help="check a config without running it")
     v.add_argument("config")
     v.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", action="extend")
-    sub.add_parser("cases", help="list the built-in cases and configs")
-    diff_opts = argparse.ArgumentParser(add_help=False)
+    sub.add_parser("cases", parents=[plug], help="list the built-in cases and configs")
+    diff_opts = argparse.ArgumentParser(add_help=False, parents=[plug])
     diff_opts.add_argument("config")
     diff_opts.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", action="extend")
     diff_opts.add_argument("--out", help="output folder (default: out/<config name>_<command>)")
@@ -137,12 +141,10 @@ def cmd_validate(args) -> int:
 
 
 def cmd_cases(args) -> int:
-    from . import config
     from .cases import CASES
 
-    for name in CASES:
-        schema = config.CASE_SCHEMAS.get(name)
-        print(f"{name}: {getattr(schema, 'doc', '')}")
+    for name, case in CASES.items():
+        print(f"{name}: {case.doc}")
     cfgs = sorted(Path("configs").glob("*.toml")) if Path("configs").is_dir() else []
     if cfgs:
         print("\nconfigs in ./configs:")
@@ -203,9 +205,35 @@ def cmd_calibrate(args) -> int:
     return 0
 
 
+def load_plugins(plugins) -> None:
+    """Import each ``--plugin``: a ``.py`` file (by path) or an importable module name, so that the
+    components it registers can be named in the config (docs/extending.md)."""
+    import importlib
+    import importlib.util
+
+    for plugin in plugins:
+        if plugin.endswith(".py"):
+            path = Path(plugin)
+            if not path.is_file():
+                raise ConfigError(f"invalid --plugin {plugin!r}: no such file; allowed: a Python file or an "
+                                  "importable module name")
+            name = f"mlsph_plugin_{path.stem}"
+            spec = importlib.util.spec_from_file_location(name, path)
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[name] = module
+            spec.loader.exec_module(module)
+        else:
+            try:
+                importlib.import_module(plugin)
+            except ModuleNotFoundError as e:
+                raise ConfigError(f"invalid --plugin {plugin!r}: {e}; allowed: a Python file or an importable "
+                                  "module name") from None
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
+        load_plugins(getattr(args, "plugin", []))
         return {"run": cmd_run, "validate": cmd_validate, "cases": cmd_cases, "sensitivity": cmd_sensitivity,
                 "calibrate": cmd_calibrate}[args.command](args)
     except (ConfigError, InputError) as e:

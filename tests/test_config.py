@@ -1,4 +1,4 @@
-"""Schema-validated TOML configs: defaults, errors, overrides, round trip, reference."""
+"""Schema-validated TOML configs: defaults, errors, overrides, round trip, reference, case registry."""
 
 from __future__ import annotations
 
@@ -7,8 +7,12 @@ import tomllib
 
 import pytest
 
-from mlsph_jax import ConfigError
+from mlsph_jax import ConfigError, InputError
 from mlsph_jax import config as C
+from mlsph_jax.cases import CASES, build_problem, register_case
+from mlsph_jax.registry import all_registries, registry
+from mlsph_jax.schema import Key
+from mlsph_jax.testing import CONFIG_DIR, builtin_configs
 
 SOD = """
 [case]
@@ -51,8 +55,12 @@ def _with(text: str, table: str, line: str) -> str:
 
 @pytest.fixture
 def scratch_registry(monkeypatch):
-    """Case schemas registered by a test disappear after it (other tests see the real ones)."""
-    monkeypatch.setattr(C.CASE_SCHEMAS, "_items", dict(C.CASE_SCHEMAS._items))
+    """Cases registered by a test disappear after it (other tests see the real ones)."""
+    monkeypatch.setattr(CASES, "_items", dict(CASES._items))
+
+
+def _no_build(cfg):
+    raise AssertionError("not built in this test")
 
 
 def _err(text: str, overrides=()) -> str:
@@ -110,7 +118,7 @@ def test_case_argument_must_match_file(tmp_path, scratch_registry):
     p = tmp_path / "sod.toml"
     p.write_text(SOD)
     assert C.load(p, case="riemann_1d") == C.load(p)
-    C.register_case_schema("dummy_case_for_tests", {"size": C.Key(int, 3, minimum=1)})
+    register_case("dummy_case_for_tests", {"size": Key(int, 3, minimum=1)}, _no_build)
     with pytest.raises(ConfigError, match="dummy_case_for_tests"):
         C.load(p, case="dummy_case_for_tests")
     cfg = C.load(None, case="dummy_case_for_tests", overrides=["time.t_end=1"])
@@ -175,7 +183,7 @@ def test_wrong_types(table, line, key, value, why):
     ("eos", "gamma = 1.0", "eos.gamma", "float > 1.0"),
     ("case", "n = 9", "case.n", "int >= 10"),
     ("scheme", 'kernel = "gaussian"', "scheme.kernel", 'one of "cubic_spline"'),
-    ("scheme", 'frame = "ale"', "scheme.frame", 'one of "eulerian", "lagrangian"'),
+    ("scheme", 'frame = "ale"', "scheme.frame", 'one of "ale_shift", "eulerian", "lagrangian"'),
 ])
 def test_range_and_choice_errors(table, line, key, allowed):
     text = SOD.replace("n = 200\n", "") if key == "case.n" else SOD
@@ -310,18 +318,19 @@ def test_riemann_1d_stiffened_gas_pressure_bound():
 
 # -- registration -----------------------------------------------------------------------------
 
-def test_register_case_schema_defaults_override_and_check(scratch_registry):
+def test_register_case_defaults_override_and_check(scratch_registry):
     def check(cfg):
         """Width must exceed height."""
         if cfg["case"]["width"] <= cfg["case"]["height"]:
             raise ConfigError("invalid case.width: must exceed case.height")
 
-    C.register_case_schema(
-        "dummy_box_for_tests", {"width": C.Key(float, 2.0, minimum=0.0, doc="box width"),
-                                "height": C.Key(float, 1.0, doc="box height")},
+    case = register_case(
+        "dummy_box_for_tests", {"width": Key(float, 2.0, minimum=0.0, doc="box width"),
+                                "height": Key(float, 1.0, doc="box height")}, _no_build,
         defaults_override={"scheme.frame": "lagrangian", "time.t_end": 1e-5, "eos.kind": "tait",
                            "eos.rho0": 1000, "eos.c0": 10},
-        check=check, dim=2)
+        check=check, dim=2, doc="A box for the tests.")
+    assert CASES.get("dummy_box_for_tests") is case and case.defaults_override["eos.rho0"] == 1000.0
     cfg = C.load(None, case="dummy_box_for_tests")
     assert cfg["scheme"]["frame"] == "lagrangian" and cfg["time"]["t_end"] == 1e-5
     assert cfg["eos"] == {"kind": "tait", "rho0": 1000.0, "c0": 10.0, "gamma": 7.0, "p0": 0.0}
@@ -332,19 +341,146 @@ def test_register_case_schema_defaults_override_and_check(scratch_registry):
     assert cfg["physics"]["body_force"] == [0.0, -9.81]
     with pytest.raises(ConfigError, match="must exceed"):
         C.load(None, case="dummy_box_for_tests", overrides=["case.width=0.5"])
-    with pytest.raises(ValueError, match="twice"):
-        C.register_case_schema("dummy_box_for_tests", {})
-    with pytest.raises(ValueError, match="unknown key 'scheme.nope'"):
-        C.register_case_schema("dummy_bad_for_tests", {}, defaults_override={"scheme.nope": 1})
+    with pytest.raises(InputError, match="unknown key 'scheme.nope'"):
+        register_case("dummy_bad_for_tests", {}, _no_build, defaults_override={"scheme.nope": 1})
     with pytest.raises(ConfigError, match="scheme.degree"):
-        C.register_case_schema("dummy_bad_for_tests", {}, defaults_override={"scheme.degree": 9})
-    with pytest.raises(ValueError, match="added automatically"):
-        C.register_case_schema("dummy_bad_for_tests", {"name": C.Key(str, "x")})
+        register_case("dummy_bad_for_tests", {}, _no_build, defaults_override={"scheme.degree": 9})
+    with pytest.raises(ConfigError, match="scheme.frame"):
+        register_case("dummy_bad_for_tests", {}, _no_build, defaults_override={"scheme.frame": "nope"})
+    with pytest.raises(InputError, match="added automatically"):
+        register_case("dummy_bad_for_tests", {"name": Key(str, "x")}, _no_build)
+    with pytest.raises(InputError, match="must be a Key"):
+        register_case("dummy_bad_for_tests", {"n": 3}, _no_build)
+    with pytest.raises(InputError, match="build"):
+        register_case("dummy_bad_for_tests", {}, None)
+    with pytest.raises(InputError, match="dim"):
+        register_case("dummy_bad_for_tests", {}, _no_build, dim=4)
+    with pytest.raises(InputError, match="Bad_Name"):
+        register_case("Bad_Name", {}, _no_build)
+    assert "dummy_bad_for_tests" not in CASES
     with pytest.raises(ConfigError, match="<default>"):
-        C.Key(int, 1.5)
+        Key(int, 1.5)
+
+
+def test_registering_a_case_twice_names_the_kind_the_name_and_the_registered_names(scratch_registry):
+    register_case("dummy_twice_for_tests", {}, _no_build)
+    with pytest.raises(InputError) as e:
+        register_case("dummy_twice_for_tests", {}, _no_build)
+    msg = str(e.value)
+    assert "case.name" in msg and "'dummy_twice_for_tests'" in msg and "registered already" in msg
+    for name in ("riemann_1d", "couette", "dummy_twice_for_tests"):
+        assert name in msg
+    # replace=True is the way to register it again (a notebook cell run twice)
+    again = register_case("dummy_twice_for_tests", {"n": Key(int, 1)}, _no_build, replace=True)
+    assert CASES.get("dummy_twice_for_tests") is again
+
+
+def test_user_case_selected_by_name_in_a_toml_config(scratch_registry):
+    """A script registers a case (keys, check, builder) and a TOML config runs it by name."""
+    built = {}
+
+    def build(cfg):
+        built["n"] = cfg["case"]["n"]
+        return CASES.get("riemann_1d").build(C.loads(SOD, [f"case.n={cfg['case']['n']}"]))
+
+    def check(cfg):
+        """`n` must be even."""
+        if cfg["case"]["n"] % 2:
+            raise ConfigError(f"invalid case.n={cfg['case']['n']}: odd; allowed: an even int")
+
+    register_case("my_tube_for_tests", {"n": Key(int, 20, minimum=10, doc="particles")}, build, check=check,
+                  dim=1, doc="A Sod tube registered by a test.", defaults_override={"time.t_end": 0.1})
+    text = '[case]\nname = "my_tube_for_tests"\nn = 30\n\n[scheme]\nflux = "rusanov"\n'
+    cfg = C.loads(text)
+    assert cfg["case"] == {"name": "my_tube_for_tests", "n": 30} and cfg["time"]["t_end"] == 0.1
+    problem = build_problem(cfg)
+    assert built == {"n": 30} and problem.particles.x.shape[0] > 30
+    assert "odd" in _err(text.replace("n = 30", "n = 31"))
+    assert "unknown key case.m" in _err(text.replace("n = 30", "m = 30"))
+    md = C.config_reference_markdown()
+    assert 'case.name = "my_tube_for_tests"' in md and "A Sod tube registered by a test." in md
+    assert "`n` must be even." in md
+
+
+def test_unregistered_component_names_the_key_the_value_and_the_registered_names():
+    msg = _err(_with(SOD, "scheme", 'flux = "nope"'))
+    assert 'invalid scheme.flux="nope"' in msg and "not a registered name" in msg
+    assert 'allowed: one of "rusanov"' in msg
+    msg = _err(_with(SOD, "scheme", 'kernel = "cubic_splin"'))
+    assert 'did you mean "cubic_spline"?' in msg
+    for key, kind in [("limiter", "scheme.limiter"), ("frame", "scheme.frame"), ("method", "scheme.method")]:
+        msg = _err(_with(SOD, "scheme", f'{key} = "nope"'))
+        assert f'invalid scheme.{key}="nope"' in msg
+        assert all(f'"{n}"' in msg for n in registry(kind).names())
+    msg = _err(SOD, ['scheme.mood_variables=["rho", "nope"]'])
+    assert "scheme.mood_variables" in msg and '"nope"' in msg and '"vel"' in msg
+    msg = _err(SOD, ["eos.kind=nope"])
+    assert 'invalid eos.kind="nope"' in msg and all(k in msg for k in registry("eos.kind").names())
+
+
+def test_component_keys_follow_their_registries(monkeypatch):
+    """Allowed names of component keys are read from the registries, at check time."""
+    component_keys = {k: key for k, key in C.SCHEMA_COMMON["scheme"].items() if key.registered}
+    assert set(component_keys) == {
+        "method", "approximation", "kernel", "reconstruction", "reconstruction_variables", "flux", "wave_speed",
+        "dissipation_normal", "frame", "shift_law", "stress", "position_update", "limiter", "mood_delta_floor",
+        "mood_variables"}
+    assert not C.SCHEMA_COMMON["scheme"]["derivative"].registered  # a plain choice, not a component
+    kinds = all_registries()
+    for k, key in component_keys.items():
+        names = kinds[f"scheme.{k}"].names()
+        assert list(key.choice_names()) == names
+        default = key.default if isinstance(key.default, list) else [key.default]
+        assert set(default) <= set(names), f"default of scheme.{k} is registered"
+    assert list(C.EOS_KIND.choice_names()) == kinds["eos.kind"].names() and C.EOS_KIND.default in kinds["eos.kind"]
+    assert list(C.CASE_NAME.choice_names()) == kinds["case.name"].names()
+    # a newly registered component is accepted at once (a fake flux: only its name matters here)
+    flux = registry("scheme.flux")
+    monkeypatch.setattr(flux, "_items", {**flux._items, "my_flux": flux.get("rusanov")})
+    assert C.loads(_with(SOD, "scheme", 'flux = "my_flux"'))["scheme"]["flux"] == "my_flux"
+
+
+def test_eos_tables_match_the_eos_registry():
+    eos = registry("eos.kind")
+    assert set(C.EOS_SCHEMAS) == set(eos.names())
+    for kind, keys in C.EOS_SCHEMAS.items():
+        assert {f"eos.{k}" for k in keys} == set(eos.get(kind).params_keys), kind
+
+
+def test_eos_registered_from_a_script_gets_config_keys_from_its_params(monkeypatch):
+    """A user's EOS needs no config edit: its [eos] keys are its ``eos.*`` params (floats), with its
+    defaults where given."""
+    eos = registry("eos.kind")
+    tait = eos.get("tait")
+    mine = type(tait)("my_eos_for_tests", False, ("eos.c0", "eos.rho0"), pressure=tait.pressure,
+                      sound_speed=tait.sound_speed, internal_energy=tait.internal_energy, defaults={"eos.c0": 2.0})
+    monkeypatch.setattr(eos, "_items", {**eos._items, "my_eos_for_tests": mine})
+    text = R1_TAIT.replace('kind = "tait"\nrho0 = 1000\nc0 = 1466.0\n', 'kind = "my_eos_for_tests"\nrho0 = 1000\n')
+    assert C.loads(text)["eos"] == {"kind": "my_eos_for_tests", "c0": 2.0, "rho0": 1000.0}
+    msg = _err(text.replace("rho0 = 1000\n", ""))
+    assert "missing required key: eos.rho0" in msg
+    msg = _err(text.replace("rho0 = 1000\n", "rho0 = 1000\ngamma = 7\n"))
+    assert "unknown key eos.gamma" in msg and "kind = 'my_eos_for_tests'" in msg
+    assert '### `eos.kind = "my_eos_for_tests"`' in C.config_reference_markdown()
+
+
+def test_effective_beta_is_the_method_default():
+    from mlsph_jax.scheme import default_beta
+
+    s = C.loads(SOD)["scheme"]
+    for method in registry("scheme.method").names():
+        assert C.effective_beta({**s, "method": method}) == default_beta(method)
+    assert C.effective_beta({**s, "beta": 1.2}) == 1.2
 
 
 # -- TOML writer and round trip ---------------------------------------------------------------
+
+def test_dumps_loads_round_trip_of_every_builtin_config():
+    assert len(builtin_configs()) >= 9
+    for stem in builtin_configs():
+        cfg = C.load(CONFIG_DIR / f"{stem}.toml")
+        assert C.loads(C.dumps(cfg)) == cfg, stem
+
 
 @pytest.mark.parametrize("text", [SOD, R1_TAIT])
 def test_dumps_load_round_trip(tmp_path, text):
@@ -388,12 +524,16 @@ def test_reference_markdown_mentions_every_key():
         assert f'eos.kind = "{kind}"' in md
         for k in schema:
             assert f"`eos.{k}`" in md
-    assert "`eos.kind`" in md
-    for name in C.CASE_SCHEMAS:
-        assert f'case.name = "{name}"' in md
-        for k in C.CASE_SCHEMAS.get(name).table():
+    assert "`eos.kind`" in md and "`case.name`" in md
+    for name, case in CASES.items():
+        assert f'case.name = "{name}"' in md and case.doc in md
+        assert "SPEC" not in case.doc and "thesis" in case.doc
+        for k in case.keys:
             assert f"`case.{k}`" in md
     assert "| `time.t_end` | float | **required** | float > 0.0 | final physical time [s] |" in md
     assert "barotropic tait EOS" in md  # the riemann_1d cross-checks are documented
+    # allowed names of component keys are the registered ones
+    assert '| one of "ale_shift", "eulerian", "lagrangian" |' in md
+    assert 'one of "blast_2d", "couette", "lid_driven_cavity", "poiseuille", "riemann_1d", "taylor_green_2d"' in md
     for key in C.SCHEMA_COMMON["scheme"].values():
         assert key.doc, "every key has a doc line"

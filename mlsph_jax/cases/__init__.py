@@ -1,23 +1,16 @@
-"""Built-in cases: one builder per case name, ``builder(cfg) -> Problem``.
+"""Built-in cases, and the one registry of cases (:data:`CASES`, kind ``"case.name"``).
 
-Each case module registers its ``[case]`` schema with :func:`mlsph_jax.config.register_case_schema`
-and its builder here with ``@CASES.register(name)``.  ``build_problem(cfg)`` dispatches on
-``cfg["case"]["name"]``.
+Each case module declares its ``[case]`` keys and cross-checks next to its builder and
+registers them with :func:`register_case`; ``build_problem(cfg)`` dispatches on
+``cfg["case"]["name"]`` through the registry.  A user's script registers its own case the same
+way and selects it with ``case.name`` in a TOML config.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from .base import CASES, Case, build_problem, register_case
 
-from ..registry import Registry
-
-CASES: Registry = Registry("case.name")
-
-
-def build_problem(cfg: Mapping):
-    """Problem for a resolved, validated config."""
-    return CASES.get(cfg["case"]["name"], "case.name")(cfg)
-
+__all__ = ["CASES", "Case", "build_problem", "register_case"]
 
 from . import blast_2d  # noqa: E402,F401,I001  (registers the case)
 from . import riemann_1d  # noqa: E402,F401  (registers the case)

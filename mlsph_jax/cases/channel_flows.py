@@ -41,13 +41,68 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from ..boundaries import Wall, with_ghosts
+from ..boundaries import BOUNDARIES, Wall
+from ..config import effective_beta
 from ..eos import get_eos, to_conservative, to_primitive
+from ..errors import ConfigError
+from ..kernels import get_kernel
 from ..reference.viscous import channel_startup, channel_steady, channel_u_max
+from ..schema import Key, join_problems, show
 from ..simulation import Problem
 from ..state import Domain, Kind, Params, Particles, make_particles
-from . import CASES
+from .base import register_case
 from .common import params_from_config, scheme_from_config
+
+# --- config schema: the [case] keys and cross-checks (mlsph_jax.config validates with them) ---------
+
+def check_channel(cfg: dict) -> None:
+    """`eos.kind` must be tait and physics.mu > 0 (the exact start-up solution has nu =
+    physics.mu / eos.rho0). `physics.body_force` must be empty or [f_x, 0.0] (a force along the
+    plates; a wall-normal force would need a hydrostatic wall treatment). The flow must be
+    driven: `u_plate` != 0 or f_x != 0. The period `nx` dx must exceed the kernel support
+    diameter 2 kappa beta dx (minimum-image neighbour search), i.e. `nx` > 2 kappa beta (6 for
+    mlsph_ale with the cubic spline, 8 for sph_ale)."""
+    c, eos, phys = cfg["case"], cfg["eos"], cfg["physics"]
+    name = c["name"]
+    problems = []
+    if eos["kind"] != "tait":
+        problems.append(f"invalid eos.kind={show(eos['kind'])}: case {name} compares with the "
+                        "incompressible start-up solution for the weakly compressible Tait fluid; "
+                        "allowed: \"tait\"")
+    if not phys["mu"] > 0.0:
+        problems.append(f"invalid physics.mu={show(phys['mu'])}: case {name} is a viscous flow; "
+                        "allowed: a float > 0 (nu = mu / eos.rho0; thesis: 0.1)")
+    bf = phys["body_force"]
+    fx = bf[0] if bf else 0.0
+    if bf and bf[1] != 0.0:
+        problems.append(f"invalid physics.body_force={show(bf)}: case {name} takes a force along "
+                        "the plates only; allowed: [] or [f_x, 0.0]")
+    if c["u_plate"] == 0.0 and fx == 0.0:
+        problems.append(f"invalid case.u_plate={show(c['u_plate'])} with physics.body_force="
+                        f"{show(bf)}: nothing drives the flow; allowed: u_plate != 0 (Couette) "
+                        "or physics.body_force = [f_x, 0.0] with f_x != 0 (Poiseuille)")
+    reach = 2.0 * get_kernel(cfg["scheme"]["kernel"]).support * effective_beta(cfg["scheme"])
+    if not c["nx"] > reach:
+        problems.append(f"invalid case.nx={c['nx']}: the period nx dx must exceed the kernel "
+                        f"support diameter {reach:g} dx; allowed: an int > {reach:g}")
+    if problems:
+        raise ConfigError(join_problems(problems))
+
+
+def _channel_keys(u_plate: float) -> dict[str, Key]:
+    return {
+        "gap": Key(float, 1.0, minimum=0.0, exclusive_minimum=True, unit="m",
+                   doc="distance L between the plates (walls at y = 0 and y = L); thesis: 1"),
+        "ny": Key(int, 40, minimum=4,
+                  doc="fluid particles across the gap (square lattice, spacing dx = gap/ny); "
+                      "thesis: 40"),
+        "nx": Key(int, 20, minimum=1,
+                  doc="fluid particles along the plates (periodic length nx dx); thesis: 20 "
+                      "(period L/2)"),
+        "u_plate": Key(float, u_plate, unit="m/s",
+                       doc="velocity of the top plate (y = L) along x, switched on at t = 0 "
+                           "(the bottom plate is fixed); thesis Couette: 1"),
+    }
 
 
 def drives(cfg: Mapping) -> dict[str, float]:
@@ -84,7 +139,8 @@ def _build(cfg: Mapping) -> Problem:
     U = to_conservative(jnp.full(n, cfg["eos"]["rho0"]), jnp.zeros((n, 2)), None, eos, params)
     pf = make_particles(x, np.full(n, dx * dx), U, ppd=np.full(n, scheme.reconstruction_degree))
     band = scheme.support * scheme.beta * dx   # support radius: every fluid stencil is complete
-    particles, walls = with_ghosts(pf, [Wall(1, 0.0, 1), Wall(1, gap, -1)], band, params, scheme.eos)
+    plates = [Wall(1, 0.0, 1), Wall(1, gap, -1)]
+    particles, walls = BOUNDARIES.get("mirror_ghosts").setup(pf, plates, band, params, scheme.eos)
     domain = Domain((0.0, -band - dx), (nx * dx, gap + band + dx), (True, False))
     d = drives(cfg)
     u_max = channel_u_max(**d)
@@ -104,14 +160,30 @@ def _build(cfg: Mapping) -> Problem:
                    config=cfg, description=_title(cfg), boundary=walls, diagnostics=errors)
 
 
-@CASES.register("couette")
 def build_couette(cfg: Mapping) -> Problem:
     return _build(cfg)
 
 
-@CASES.register("poiseuille")
 def build_poiseuille(cfg: Mapping) -> Problem:
     return _build(cfg)
+
+
+COUETTE = register_case(
+    "couette", _channel_keys(1.0), build_couette, check=check_channel, dim=2,
+    defaults_override={"eos.kind": "tait", "eos.rho0": 1.0, "eos.c0": 10.0, "physics.mu": 0.1,
+                       "time.t_end": 10.0, "output.snapshots": 20},
+    doc="Start-up Couette flow (thesis §3.7.4): fluid at rest between two plates `gap` apart, "
+        "the top plate impulsively set to `u_plate`; mirror-ghost walls, periodic along the "
+        "plates, compared with the exact series solution (thesis eq. 3.20).")
+
+POISEUILLE = register_case(
+    "poiseuille", _channel_keys(0.0), build_poiseuille, check=check_channel, dim=2,
+    defaults_override={"eos.kind": "tait", "eos.rho0": 1.0, "eos.c0": 10.0, "physics.mu": 0.1,
+                       "physics.body_force": [0.8, 0.0], "time.t_end": 10.0, "output.snapshots": 20},
+    doc="Start-up Poiseuille flow (thesis §3.7.4): fluid at rest between two fixed plates "
+        "`gap` apart driven by the body force `physics.body_force` = [f_x, 0] (peak velocity "
+        "f_x L^2 / (8 nu)); mirror-ghost walls, periodic along the plates, compared with the "
+        "exact series solution (thesis eq. 3.21 with its sign corrected).")
 
 
 def _title(cfg) -> str:

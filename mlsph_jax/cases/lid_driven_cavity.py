@@ -58,15 +58,68 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from ..boundaries import Wall, with_ghosts
-from ..config import lid_driven_cavity_viscosity
+from ..boundaries import BOUNDARIES, Wall
 from ..eos import get_eos, to_conservative, to_primitive
+from ..errors import ConfigError
 from ..reference import ghia
+from ..schema import Key, join_problems, show
 from ..simulation import Problem
 from ..state import Domain, Kind, Params, Particles, make_particles
-from . import CASES
+from .base import register_case
 from .channel_flows import lattice
 from .common import params_from_config, scheme_from_config
+
+# --- config schema: the [case] keys and cross-checks (mlsph_jax.config validates with them) ---------
+
+def lid_driven_cavity_viscosity(cfg: Mapping) -> float:
+    """Dynamic viscosity of a resolved ``lid_driven_cavity`` config: mu = rho0 u_lid length / re."""
+    c = cfg["case"]
+    return cfg["eos"]["rho0"] * c["u_lid"] * c["length"] / c["re"]
+
+
+def check_lid_driven_cavity(cfg: dict) -> None:
+    """`eos.kind` must be tait. The viscosity follows from `re`: mu = eos.rho0 `u_lid`
+    `length` / `re`; physics.mu must be left at 0 (it is then set to that value) or equal it
+    (relative difference <= 1e-9). `physics.body_force` must be empty. `scheme.frame` must be
+    eulerian (the mirror ghosts are fixed at set-up, so the particles must not move)."""
+    c, eos, phys = cfg["case"], cfg["eos"], cfg["physics"]
+    problems = []
+    if eos["kind"] != "tait":
+        problems.append(f"invalid eos.kind={show(eos['kind'])}: case lid_driven_cavity is a "
+                        "weakly compressible Tait flow; allowed: \"tait\"")
+    else:
+        mu = lid_driven_cavity_viscosity(cfg)
+        if phys["mu"] != 0.0 and abs(phys["mu"] - mu) > 1e-9 * mu:
+            problems.append(f"invalid physics.mu={show(phys['mu'])}: case lid_driven_cavity derives "
+                            f"the viscosity from case.re={show(c['re'])} (mu = eos.rho0 case.u_lid "
+                            f"case.length / case.re = {mu:.10g}); allowed: 0 (derived) or "
+                            f"{mu:.10g} — set case.re instead")
+    if phys["body_force"]:
+        problems.append(f"invalid physics.body_force={show(phys['body_force'])}: the lid-driven "
+                        "cavity has no body force; allowed: []")
+    if cfg["scheme"]["frame"] != "eulerian":
+        problems.append(f"invalid scheme.frame={show(cfg['scheme']['frame'])}: the cavity's "
+                        "mirror ghosts are fixed at set-up, so the particles must stay in place; "
+                        "allowed: \"eulerian\"")
+    if problems:
+        raise ConfigError(join_problems(problems))
+
+
+LID_DRIVEN_CAVITY_KEYS: dict[str, Key] = {
+    "n": Key(int, 40, minimum=8,
+             doc="fluid particles per side (n^2 in total, square lattice, spacing length/n); "
+                 "thesis: 100"),
+    "length": Key(float, 1.0, minimum=0.0, exclusive_minimum=True, unit="m",
+                  doc="side L of the square cavity [0, L]^2"),
+    "u_lid": Key(float, 1.0, minimum=0.0, exclusive_minimum=True, unit="m/s",
+                 doc="velocity of the lid (top wall y = L) along +x; the other walls are fixed"),
+    "re": Key(float, 100.0, minimum=0.0, exclusive_minimum=True,
+              doc="Reynolds number Re = rho0 u_lid L / mu (sets physics.mu); Ghia et al. "
+                  "(1982) centre-line data exist for 100, 400 and 1000"),
+    "steady_tol": Key(float, 2e-3, minimum=0.0,
+                      doc="stop early once max|u(t2) - u(t1)| / max|u| / (t2 - t1) between two "
+                          "output times is below this (1/s; 0 = always run to time.t_end)"),
+}
 
 
 def run_config(cfg: Mapping) -> dict:
@@ -75,7 +128,6 @@ def run_config(cfg: Mapping) -> dict:
     return {**cfg, "physics": {**cfg["physics"], "mu": mu}}
 
 
-@CASES.register("lid_driven_cavity")
 def build(cfg: Mapping) -> Problem:
     cfg = run_config(cfg)
     c = cfg["case"]
@@ -91,7 +143,7 @@ def build(cfg: Mapping) -> Problem:
     pf = make_particles(x, np.full(len(x), dx * dx), U, ppd=np.full(len(x), scheme.reconstruction_degree))
     band = scheme.support * scheme.beta * dx
     walls = [Wall(1, 0.0, 1), Wall(1, L, -1), Wall(0, 0.0, 1), Wall(0, L, -1)]
-    particles, mirror = with_ghosts(pf, walls, band, params, scheme.eos)
+    particles, mirror = BOUNDARIES.get("mirror_ghosts").setup(pf, walls, band, params, scheme.eos)
     pad = band + dx
     domain = Domain((-pad, -pad), (L + pad, L + pad), (False, False))
     re_table = ghia.table_reynolds(c["re"])
@@ -120,6 +172,15 @@ def build(cfg: Mapping) -> Problem:
     return Problem("lid_driven_cavity", particles, params, scheme, domain, cfg["time"]["t_end"], metrics, plot,
                    config=cfg, description=_title(cfg), boundary=mirror, diagnostics=diagnostics,
                    steady_tol=c["steady_tol"])
+
+
+LID_DRIVEN_CAVITY = register_case(
+    "lid_driven_cavity", LID_DRIVEN_CAVITY_KEYS, build, check=check_lid_driven_cavity, dim=2,
+    defaults_override={"eos.kind": "tait", "eos.rho0": 1.0, "eos.c0": 10.0, "time.t_end": 15.0,
+                       "output.snapshots": 15},
+    doc="Two-dimensional lid-driven cavity (thesis §3.7.5): fluid at rest in the square [0, "
+        "`length`]^2, the lid moves at `u_lid`; mirror-ghost walls with corner ghosts, run to a "
+        "steady state and compared with Ghia et al. (1982) along the centre lines.")
 
 
 def _title(cfg, t: float | None = None) -> str:

@@ -66,9 +66,10 @@ import numpy as np
 from ..eos import get_eos, to_conservative, to_primitive
 from ..errors import ConfigError
 from ..kernels import safe_norm
+from ..schema import Key, join_problems, show
 from ..simulation import Problem
 from ..state import Domain, Kind, Particles, make_particles
-from . import CASES
+from .base import register_case
 from .common import params_from_config, scheme_from_config
 
 
@@ -149,7 +150,64 @@ def lattice(n: int, length: float, layout: str = "cartesian", perturbation: floa
     return x
 
 
-@CASES.register("taylor_green_2d")
+# --- config schema: the [case] keys and cross-checks (mlsph_jax.config validates with them) ---------
+
+TAYLOR_GREEN_2D_LAYOUTS = ("cartesian", "perturbed")
+
+
+def check_taylor_green_2d(cfg: dict) -> None:
+    """`eos.kind` must be tait (the initial density inverts the Tait law at the exact pressure).
+    The viscosity follows from `re`: mu = eos.rho0 `u0` `length` / `re`; physics.mu must be left
+    at 0 (it is then set to that value) or equal it (relative difference <= 1e-9).
+    `physics.body_force` must be empty. The Tait law must be invertible at the lowest exact
+    pressure -rho0 u0^2/2: eos.gamma u0^2 / (2 eos.c0^2) < 1 (Mach number u0/c0 below
+    sqrt(2/gamma), 0.53 for gamma = 7)."""
+    c, eos, phys = cfg["case"], cfg["eos"], cfg["physics"]
+    problems = []
+    if eos["kind"] != "tait":
+        problems.append(f"invalid eos.kind={show(eos['kind'])}: case taylor_green_2d sets the "
+                        "initial density from the Tait law at the exact pressure; allowed: \"tait\"")
+    else:
+        mu = eos["rho0"] * c["u0"] * c["length"] / c["re"]
+        if phys["mu"] != 0.0 and abs(phys["mu"] - mu) > 1e-9 * mu:
+            problems.append(f"invalid physics.mu={show(phys['mu'])}: case taylor_green_2d derives "
+                            f"the viscosity from case.re={show(c['re'])} (mu = eos.rho0 case.u0 "
+                            f"case.length / case.re = {mu:.10g}); allowed: 0 (derived) or "
+                            f"{mu:.10g} (set case.re instead)")
+        if eos["gamma"] * c["u0"] ** 2 / (2.0 * eos["c0"] ** 2) >= 1.0:
+            problems.append(f"invalid case.u0={show(c['u0'])}: the Tait law cannot be inverted at "
+                            f"the lowest exact pressure -rho0 u0^2/2 with eos.c0={show(eos['c0'])}; "
+                            f"allowed: u0 < c0 sqrt(2/gamma) = "
+                            f"{eos['c0'] * math.sqrt(2.0 / eos['gamma']):.6g}")
+    if phys["body_force"]:
+        problems.append(f"invalid physics.body_force={show(phys['body_force'])}: the Taylor-Green "
+                        "vortex has no body force; allowed: []")
+    if problems:
+        raise ConfigError(join_problems(problems))
+
+
+TAYLOR_GREEN_2D_KEYS: dict[str, Key] = {
+    "n": Key(int, 50, minimum=8,
+             doc="particles per side (n^2 in total, spacing length/n); thesis §3.7.3: 100, "
+                 "§4.5.1: 50"),
+    "length": Key(float, 1.0, minimum=0.0, exclusive_minimum=True, unit="m",
+                  doc="side L of the periodic square [0, L]^2 (one period of the vortex pattern; "
+                      "thesis §3.7.3: 1, §4.5.1: 2 pi)"),
+    "u0": Key(float, 1.0, minimum=0.0, exclusive_minimum=True, unit="m/s",
+              doc="velocity amplitude U0 of the exact solution"),
+    "re": Key(float, 100.0, minimum=0.0, exclusive_minimum=True,
+              doc="Reynolds number Re = rho0 U0 L / mu (sets physics.mu = rho0 U0 L / Re); the "
+                  "kinetic energy decays as exp(-16 pi^2 t U0 / (Re L))"),
+    "layout": Key(str, "cartesian", choices=TAYLOR_GREEN_2D_LAYOUTS,
+                  doc="initial particles: Cartesian lattice (x = (i + 1/2) dx) or the lattice "
+                      "with random displacements"),
+    "perturbation": Key(float, 0.15, minimum=0.0, maximum=0.5, exclusive_maximum=True,
+                        doc="perturbed layout: each coordinate is displaced by a uniform random "
+                            "amount in [-perturbation dx, +perturbation dx] (volumes stay dx^2)"),
+    "seed": Key(int, 0, minimum=0, doc="random seed of the perturbed layout"),
+}
+
+
 def build(cfg: Mapping) -> Problem:
     cfg = resolved(cfg)
     c = cfg["case"]
@@ -195,6 +253,14 @@ def build(cfg: Mapping) -> Problem:
     return Problem("taylor_green_2d", particles, params, scheme, domain, cfg["time"]["t_end"], metrics,
                    plot, config=cfg, description=title, diagnostics=diagnostics,
                    differentiable_metrics=differentiable_metrics)
+
+
+TAYLOR_GREEN_2D = register_case(
+    "taylor_green_2d", TAYLOR_GREEN_2D_KEYS, build, check=check_taylor_green_2d, dim=2,
+    defaults_override={"eos.kind": "tait", "eos.rho0": 1.0, "eos.c0": 10.0, "time.t_end": 1.0},
+    doc="Two-dimensional viscous Taylor-Green vortex (weakly compressible, Tait EOS, periodic "
+        "square [0, `length`]^2; thesis §3.7.3 and §4.5.1), compared with the exact incompressible "
+        "solution.")
 
 
 def _title(cfg) -> str:

@@ -1,0 +1,223 @@
+"""The config tables shared by every case: ``[scheme]``, ``[time]``, ``[output]``, ``[physics]``,
+the ``[eos]`` keys of each equation of state, and the two selector keys ``case.name`` and
+``eos.kind``.
+
+Keys that name a component (a method, kernel, flux, frame, limiter, EOS, case, ...) take their
+allowed values from the component registries (:func:`mlsph_jax.registry.names_of`), the only
+list of those names: a component a user registers is accepted by the config at once.  Numerical
+defaults that depend on a component (the smoothing-length factor of a method) belong to the
+component, not to this module (:func:`effective_beta`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from ..registry import names_of, registry
+from ..schema import REQUIRED, Key
+
+__all__ = ["CASE_NAME", "EOS_KIND", "EOS_SCHEMAS", "OUTPUT_KEYS", "PHYSICS_KEYS", "SCHEMA_COMMON", "SCHEME_KEYS",
+           "TABLES", "TABLE_DOCS", "TIME_KEYS", "all_eos_keys", "effective_beta", "eos_keys"]
+
+#: The tables of a config, in the order a resolved config holds them.
+TABLES = ("case", "scheme", "eos", "physics", "time", "output")
+
+TABLE_DOCS = {
+    "case": "The test case: `name` selects the case; its other keys depend on the case.",
+    "scheme": "The numerical method: approximation, reconstruction, flux, frame, limiter.",
+    "eos": "Equation of state: `kind` selects the EOS; its other keys depend on the kind.",
+    "physics": "Physical parameters shared by all cases.",
+    "time": "Time integration (SSP-RK3) and time-step control.",
+    "output": "What the run writes (snapshots, plots) and shows (progress).",
+}
+
+#: ``[scheme]``: the numerical method.
+SCHEME_KEYS: dict[str, Key] = {
+    "method": Key(str, "mlsph_ale", choices=names_of("scheme.method"),
+                  doc="particle method: MLSPH-ALE (MLS areas, thesis ch. 4) or kernel SPH-ALE "
+                      "(thesis ch. 3)"),
+    "approximation": Key(str, "mls", choices=names_of("scheme.approximation"),
+                         doc="shape functions used for the area vectors in mlsph_ale: MLS, "
+                             "kernel W*V, Shepard W/sum(W), or corrected kernel"),
+    "degree": Key(int, 2, minimum=0, maximum=3,
+                  doc="degree of the MLS polynomial basis (0 constant, 1 linear, 2 quadratic, "
+                      "3 cubic)"),
+    "kernel": Key(str, "cubic_spline",
+                  choices=names_of("scheme.kernel"),
+                  doc="smoothing kernel (also the MLS weight function)"),
+    "beta": Key(float, 0.0, minimum=0.0, note="0 = method default",
+                doc="smoothing-length factor, h_i = beta V_i^(1/d); 0 selects the method "
+                    "default (1.5 for mlsph_ale, 2.0 for sph_ale)"),
+    "derivative": Key(str, "full", choices=("full", "fixed_centre"),
+                      doc="MLS shape-function derivatives: full (exact derivative of N_j) or "
+                          "fixed_centre (diffuse, moment matrix frozen at the centre)"),
+    "reconstruction_degree": Key(int, 2, minimum=0, maximum=3,
+                                 doc="degree of the MLS reconstruction of the Riemann states "
+                                     "at the pair midpoints (0 = first order, no "
+                                     "reconstruction)"),
+    "reconstruction": Key(str, "taylor", choices=names_of("scheme.reconstruction"),
+                          doc="Riemann-state reconstruction at x_ij: taylor = U_i plus the MLS "
+                              "derivatives of U at x_i (thesis eq. 3.11; stable on irregular "
+                              "layouts), mls_direct = the MLS fit of the stencil evaluated at "
+                              "x_ij (eq. 4.39 read literally; unstable on jittered layouts)"),
+    "reconstruction_variables": Key(str, "conservative", choices=names_of("scheme.reconstruction_variables"),
+                                    doc="variables reconstructed at the pair midpoints"),
+    "flux": Key(str, "rusanov", choices=names_of("scheme.flux"),
+                doc="numerical (Riemann) flux at the pair midpoints"),
+    "wave_speed": Key(str, "rusanov_abs", choices=names_of("scheme.wave_speed"),
+                      doc="Rusanov wave-speed estimate: max(|(u-w).n|+c) (standard), or the "
+                          "signed formulas printed in thesis ch. 3 / ch. 4 (reproduction "
+                          "studies)"),
+    "dissipation_normal": Key(str, "area", choices=names_of("scheme.dissipation_normal"),
+                              doc="normal of the Rusanov dissipation term: A_ij/|A_ij| (area) "
+                                  "or the unit vector between the particles (pair)"),
+    "self_flux": Key(bool, True,
+                     doc="include the self-flux term -F_i.sum_j A_ij (thesis default; keeps "
+                         "uniform states exact, conserves only up to a quadrature defect)"),
+    "frame": Key(str, "eulerian", choices=names_of("scheme.frame"),
+                 doc="ALE frame velocity: eulerian (w = 0, particles fixed), lagrangian "
+                     "(w = u) or ale_shift (w = u + particle-shifting drift, SPEC §9)"),
+    "shift_law": Key(str, "xu", choices=names_of("scheme.shift_law"),
+                     doc="drift law of the ale_shift frame: xu (repulsion C U_max sum_j (r_i/r_ij)^2 "
+                         "e_ji / n_i, SPEC §9) or fickian (-C U_max h_i sum_j V_j grad W_ij, smooth where "
+                         "neighbours cross the support edge)"),
+    "shift_coefficient": Key(float, 0.02, minimum=0.0,
+                             doc="coefficient C of the ale_shift drift (both laws of scheme.shift_law; "
+                                 "mlsph_jax.rhs.shifting_velocity)"),
+    "stress": Key(str, "stokes", choices=names_of("scheme.stress"),
+                  doc="viscous stress: stokes (mu (grad u + grad u^T - 2/3 div u I)) or "
+                      "incompressible (no -2/3 div u term, thesis ch. 3)"),
+    "position_update": Key(str, "mls", choices=names_of("scheme.position_update"),
+                           doc="velocity that moves the particles: MLS interpolant of w, "
+                               "Shepard average of w, or the particle's own w_i"),
+    "limiter": Key(str, "none", choices=names_of("scheme.limiter"),
+                   doc="a-posteriori limiter: none or MOOD (local reduction of the "
+                       "reconstruction degree)"),
+    "mood_variables": Key(list, ["rho", "p"], item_type=str, choices=names_of("scheme.mood_variables"),
+                          doc="variables checked by the MOOD NAD detector (relaxed discrete maximum "
+                              "principle, thesis eq. 3.12); vel = every velocity component, "
+                              "conservative = every component of U"),
+    "mood_delta_abs": Key(float, 1e-4, minimum=0.0,
+                          doc="absolute NAD tolerance floor (thesis eq. 3.13; in the variable's units)"),
+    "mood_delta_floor": Key(str, "scaled", choices=names_of("scheme.mood_delta_floor"),
+                            doc="NAD floor: scaled = mood_delta_abs * max |phi| over all particles "
+                                "(default; unit-free), absolute = mood_delta_abs as printed in "
+                                "thesis eq. 3.13 (in the variable's units: Pa, kg/m^3)"),
+    "mood_delta_rel": Key(float, 1e-3, minimum=0.0,
+                          doc="NAD tolerance relative to the stencil range max - min (thesis eq. 3.13)"),
+    "mood_pad": Key(bool, True, doc="MOOD physical-admissibility detector (finite, rho > 0; p > 0 for "
+                                    "the ideal gas, p + pc > 0 for the stiffened gas)"),
+    "mood_nad": Key(bool, True, doc="MOOD numerical-admissibility detector (no new extrema)"),
+    "mood_max_iter": Key(int, 8, minimum=1,
+                         doc="bound on the MOOD detect-and-demote iterations per Runge-Kutta stage"),
+    "neighbor_headroom": Key(float, 1.3, minimum=1.0,
+                             doc="neighbour-list capacity as a multiple of the largest initial "
+                                 "neighbour count"),
+}
+
+
+#: ``[time]``: time integration and time-step control.
+TIME_KEYS: dict[str, Key] = {
+    "t_end": Key(float, minimum=0.0, exclusive_minimum=True, unit="s",
+                 doc="final physical time"),
+    "cfl": Key(float, 0.3, minimum=0.0, maximum=1.0, exclusive_minimum=True,
+               doc="CFL number C in dt = C min_i dx_i / (|u_i - w_i| + c_i)"),
+    "cfl_viscous": Key(float, 0.125, minimum=0.0, maximum=1.0, exclusive_minimum=True,
+                       doc="diffusive time-step factor: dt <= cfl_viscous min_i rho_i dx_i^2 / max(mu, kappa)"),
+    "dt": Key(float, 0.0, minimum=0.0, unit="s", note="0 = adaptive",
+              doc="fixed time step; 0 selects the adaptive CFL step"),
+    "max_steps": Key(int, 1_000_000, minimum=1,
+                     doc="maximum number of time steps before the run is stopped"),
+    "chunk": Key(int, 50, minimum=1,
+                 doc="time steps per jitted scan chunk (output, progress and neighbour checks "
+                     "happen between chunks)"),
+    "dt_min": Key(float, 1e-14, minimum=0.0, maximum=1.0, exclusive_minimum=True,
+                  exclusive_maximum=True,
+                  doc="time-step underflow threshold relative to t_end: the run fails if "
+                      "dt < dt_min * t_end"),
+}
+
+
+#: ``[output]``: what a run writes and shows.
+OUTPUT_KEYS: dict[str, Key] = {
+    "snapshots": Key(int, 10, minimum=1,
+                     doc="number of snapshots written besides the initial one (equally spaced "
+                         "in time)"),
+    "plots": Key(bool, True, doc="write PNG plots at the end of the run"),
+    "progress": Key(bool, True, doc="show a progress bar during the run"),
+}
+
+
+#: ``[physics]``: physical parameters shared by all cases.
+PHYSICS_KEYS: dict[str, Key] = {
+    "mu": Key(float, 0.0, minimum=0.0, unit="Pa s",
+              doc="dynamic viscosity (0 = inviscid Euler equations)"),
+    "kappa": Key(float, 0.0, minimum=0.0, unit="kg/(m s)",
+                 doc="heat conduction coefficient k/c_v of q = -kappa grad e (0 = none; must be 0 "
+                     "for the Tait EOS, which has no energy equation)"),
+    "body_force": Key(list, [], item_type=float, unit="m/s^2",
+                      note="empty, or one component per space dimension",
+                      doc="body-force acceleration vector (empty = no body force)"),
+}
+
+#: The ``[eos]`` keys of the built-in equations of state (besides ``kind``), by ``eos.kind``.  The
+#: keys of an EOS registered from a user's script are derived from it (:func:`eos_keys`).
+EOS_SCHEMAS: dict[str, dict[str, Key]] = {
+    "ideal_gas": {
+        "gamma": Key(float, 1.4, minimum=1.0, exclusive_minimum=True,
+                     doc="ratio of specific heats, p = (gamma - 1) rho e"),
+    },
+    "tait": {
+        "rho0": Key(float, minimum=0.0, exclusive_minimum=True, unit="kg/m^3",
+                    doc="reference density"),
+        "c0": Key(float, minimum=0.0, exclusive_minimum=True, unit="m/s",
+                  doc="sound speed at the reference density"),
+        "gamma": Key(float, 7.0, minimum=0.0, exclusive_minimum=True,
+                     doc="Tait exponent, p = rho0 c0^2/gamma ((rho/rho0)^gamma - 1) + p0"),
+        "p0": Key(float, 0.0, unit="Pa", doc="background pressure added to the Tait pressure"),
+    },
+    "stiffened_gas": {
+        "gamma": Key(float, minimum=1.0, exclusive_minimum=True,
+                     doc="Tammann exponent, p = (gamma - 1) rho e - gamma pc"),
+        "pc": Key(float, minimum=0.0, unit="Pa", doc="stiffening pressure"),
+    },
+}
+
+#: The ``[eos].kind`` key: a registered EOS (:data:`mlsph_jax.eos.EOS_REGISTRY`); its other
+#: ``[eos]`` keys are :func:`eos_keys`.
+EOS_KIND = Key(str, "ideal_gas", choices=names_of("eos.kind"),
+               doc="equation of state; selects the other [eos] keys")
+
+#: The ``[case].name`` key: a registered case (:data:`mlsph_jax.cases.CASES`), which declares
+#: the other ``[case]`` keys.
+CASE_NAME = Key(str, REQUIRED, choices=names_of("case.name"),
+                doc="the test case; selects the other [case] keys")
+
+#: The tables that do not depend on the case or the EOS.
+SCHEMA_COMMON: dict[str, dict[str, Key]] = {
+    "scheme": SCHEME_KEYS, "time": TIME_KEYS, "output": OUTPUT_KEYS, "physics": PHYSICS_KEYS}
+
+
+def eos_keys(kind: str) -> dict[str, Key]:
+    """The ``[eos]`` keys (besides ``kind``) of the registered EOS ``kind``: :data:`EOS_SCHEMAS` for
+    a built-in one; for one registered from a user's script, a float key per ``eos.*`` entry of its
+    ``params_keys``, with its ``defaults`` where given (required otherwise)."""
+    if kind in EOS_SCHEMAS:
+        return EOS_SCHEMAS[kind]
+    eos = registry("eos.kind").get(kind)
+    defaults = getattr(eos, "defaults", None) or {}
+    return {k.partition(".")[2]: Key(float, defaults.get(k, REQUIRED), doc=f"parameter {k} of the EOS {kind!r}")
+            for k in eos.params_keys if k.startswith("eos.")}
+
+
+def all_eos_keys() -> dict[str, dict[str, Key]]:
+    """:func:`eos_keys` of every registered EOS, by kind (built-in ones first, in their order)."""
+    kinds = [*EOS_SCHEMAS, *(k for k in registry("eos.kind").names() if k not in EOS_SCHEMAS)]
+    return {k: eos_keys(k) for k in kinds}
+
+
+def effective_beta(scheme: Mapping) -> float:
+    """Smoothing-length factor of a resolved ``[scheme]`` table (``beta = 0``: the method's default)."""
+    from ..scheme import default_beta  # the numerics own the default (and import nothing from config)
+
+    return float(scheme["beta"]) or float(default_beta(scheme["method"]))
