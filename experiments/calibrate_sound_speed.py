@@ -23,7 +23,7 @@ import numpy as np
 
 from mlsph_jax import config
 from mlsph_jax.cases import build_problem
-from mlsph_jax.cases.riemann_1d import _exact
+from mlsph_jax.cases.riemann_1d import exact_solution
 from mlsph_jax.differentiable import make_simulate, with_param
 from mlsph_jax.sensitivity import calibrate, write_calibration
 
@@ -39,7 +39,7 @@ def run(n: int = 100, start: float = 1.2, steps: int = 10, n_steps: int | None =
     obs = jax.jit(sim)(pb.params, pb.particles)
     t_end = float(obs.times[-1])
     x_obs = float(obs.series["shock_position"][-1])
-    x_exact = _exact(cfg).wave_positions(t_end)
+    x_exact = exact_solution(cfg).wave_positions(t_end)
     target = {"t": np.asarray([t_end]), "shock_position": np.asarray([x_obs])}
     c0_true = float(pb.params["eos.c0"])
     pb0 = dataclasses.replace(pb, params=with_param(pb.params, "eos.c0", start * c0_true))

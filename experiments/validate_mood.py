@@ -27,7 +27,7 @@ import numpy as np  # noqa: E402
 
 from mlsph_jax import config  # noqa: E402
 from mlsph_jax.cases import build_problem  # noqa: E402
-from mlsph_jax.cases.riemann_1d import _exact, _fields  # noqa: E402
+from mlsph_jax.cases.riemann_1d import exact_solution, profile_fields  # noqa: E402
 from mlsph_jax.simulation import run_problem  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -43,12 +43,12 @@ def run(path: str, over: list[str]):
 
 
 def figure(dest: Path, title: str, cfg, pb, results):
-    exact = _exact(cfg)
+    exact = exact_solution(cfg)
     t = cfg["time"]["t_end"]
     names = ["rho", "u", "p"]
     fig, axes = plt.subplots(2, 3, figsize=(12.5, 6.2), sharex=True)
     for row, (label, res) in enumerate(results.items()):
-        x, _, f = _fields(res.particles, pb.params, cfg["eos"]["kind"])
+        x, _, f = profile_fields(res.particles, pb.params, cfg["eos"]["kind"])
         xf = np.linspace(x.min(), x.max(), 2000)
         ex = exact(xf, t)
         ppd = np.asarray(res.particles.ppd)[np.asarray(res.particles.kind) == 0]
@@ -70,7 +70,7 @@ def figure(dest: Path, title: str, cfg, pb, results):
 
 def blast(figs: Path, layout: str | None) -> dict:
     """First order vs MOOD on the 2D blast: radial metrics and a side-by-side density scatter."""
-    from mlsph_jax.cases.blast_2d import _fields as blast_fields
+    from mlsph_jax.cases.blast_2d import radial_fields as blast_fields
     from mlsph_jax.cases.blast_2d import reference
 
     over = [f"case.layout={layout}"] if layout else []

@@ -194,7 +194,7 @@ def _title(cfg, n_fluid: int) -> str:
             f"reconstruction degree {s['reconstruction_degree']}, limiter {s['limiter']}, {s['frame']}")
 
 
-def _fields(p: Particles, P, eos_kind: str):
+def radial_fields(p: Particles, P, eos_kind: str):
     """Radius, volume and density of the fluid particles."""
     fluid = np.asarray(p.kind) == int(Kind.FLUID)
     pr = to_primitive(p.U, get_eos(eos_kind), P)
@@ -226,7 +226,7 @@ def radial_spread(r: np.ndarray, rho: np.ndarray, width: float) -> tuple[float, 
 def radial_metrics(p: Particles, t: float, P, ref: RadialSolution, eos_kind: str, dx: float,
                    r_interface: float, rho_out: float) -> dict[str, float]:
     """``l1_rho_radial``, ``radial_spread``, ``radial_spread_max`` (module docstring)."""
-    r, vol, rho, _ = _fields(p, P, eos_kind)
+    r, vol, rho, _ = radial_fields(p, P, eos_kind)
     rng = float(ref.rho.max() - ref.rho.min())
     ref_rho = ref(r)["rho"]
     l1 = float(np.sum(vol * np.abs(rho - ref_rho)) / (np.sum(vol) * max(rng, 1e-300)))
@@ -248,7 +248,7 @@ def plot_radial(out: Path, p: Particles, t: float, P, ref: RadialSolution, eos_k
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    r, _, rho, x = _fields(p, P, eos_kind)
+    r, _, rho, x = radial_fields(p, P, eos_kind)
     head = title.replace(": ", "\n", 1) + f", t={t:.4g} s"
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     ax.plot(r, rho, ".", ms=1.5, color="tab:blue", alpha=0.6, label=f"particles ({r.size})")

@@ -100,7 +100,7 @@ RIEMANN_1D_KEYS: dict[str, Key] = {
 }
 
 
-def _exact(cfg: Mapping) -> ExactRiemann | None:
+def exact_solution(cfg: Mapping) -> ExactRiemann | None:
     """The exact solution, or ``None`` for an EOS without an exact Riemann solver (one registered
     from a user's script): the run then has no reference metrics."""
     c, eos = cfg["case"], cfg["eos"]
@@ -136,7 +136,7 @@ def build(cfg: Mapping) -> Problem:
     particles = make_particles(x[:, None], np.full(x.shape, dx), U, kind=kind,
                                ppd=np.full(x.shape, scheme.reconstruction_degree))
     domain = Domain((a - (n_frozen + 2) * dx,), (b + (n_frozen + 2) * dx,), (False,))
-    exact = _exact(cfg)
+    exact = exact_solution(cfg)
 
     def metrics(p: Particles, t: float, P) -> dict[str, float]:
         return l1_errors(p, t, P, exact, scheme.eos, (a, b)) if exact is not None else {}
@@ -174,7 +174,9 @@ def _title(cfg) -> str:
             f"reconstruction degree {s['reconstruction_degree']}, {s['frame']}")
 
 
-def _fields(p: Particles, P, eos_kind: str):
+def profile_fields(p: Particles, P, eos_kind: str):
+    """Positions, volumes and primitive fields (rho, u, p, and e where the EOS has it) of the fluid
+    particles (host arrays)."""
     fluid = np.asarray(p.kind) == int(Kind.FLUID)
     pr = to_primitive(p.U, get_eos(eos_kind), P)
     x = np.asarray(p.x[:, 0])[fluid]
@@ -187,7 +189,7 @@ def _fields(p: Particles, P, eos_kind: str):
 
 def l1_errors(p: Particles, t: float, P, exact: ExactRiemann, eos_kind: str, span) -> dict[str, float]:
     """Normalised L1 errors of rho, u, p against the exact solution (module docstring)."""
-    x, vol, f = _fields(p, P, eos_kind)
+    x, vol, f = profile_fields(p, P, eos_kind)
     ex = exact(x, t)
     fine = exact(np.linspace(span[0], span[1], 20001), t)
     out = {}
@@ -236,7 +238,7 @@ def plot_profiles(path: Path, p: Particles, t: float, P, exact: ExactRiemann, eo
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    x, _, f = _fields(p, P, eos_kind)
+    x, _, f = profile_fields(p, P, eos_kind)
     xf = np.linspace(x.min(), x.max(), 2000)
     ex = exact(xf, t)
     names = [k for k in ("rho", "u", "p", "e") if k in f]
