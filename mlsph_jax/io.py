@@ -34,6 +34,7 @@ import h5py
 import numpy as np
 
 from .errors import InputError
+from .state import Kind
 
 __all__ = [
     "REQUIRED_FIELDS",
@@ -55,6 +56,11 @@ SUMMARY_KEYS = ("case", "scheme", "n_particles", "n_steps", "t_final", "wall_tim
                 "compile_time_s", "status", "metrics", "conservation")
 _VECTOR_FIELDS = ("x", "vel")
 _PADDED = "xyz"
+_CONNECTIVITY = "connectivity"
+#: Particle kinds as written in the ``kind`` dataset (:class:`mlsph_jax.state.Kind`; also the root
+#: attribute ``kind_codes`` of fields.h5 and an attribute of every ``kind`` dataset).
+KIND_CODES = {k.name.lower(): int(k) for k in Kind}
+_KIND_TEXT = ", ".join(f"{v} = {k}" for k, v in KIND_CODES.items())
 
 
 def _atomic_write_text(path: Path, text: str) -> None:
@@ -91,6 +97,7 @@ class SnapshotWriter:
             f.attrs["dim"] = self.dim
             f.attrs["format"] = FORMAT
             f.attrs["version"] = FORMAT_VERSION
+            f.attrs["kind_codes"] = _KIND_TEXT
             f.create_group("snapshots")
         write_xdmf(self.h5_path, self.xmf_path)
 
@@ -112,10 +119,17 @@ class SnapshotWriter:
         data = self._check_fields(fields)
         name = f"{self.count:05d}"
         with h5py.File(self.h5_path, "a") as f:
+            n = data["x"].shape[0]
+            if _CONNECTIVITY not in f or f[_CONNECTIVITY].shape[0] != n:   # the Polyvertex topology
+                if _CONNECTIVITY in f:
+                    del f[_CONNECTIVITY]
+                f.create_dataset(_CONNECTIVITY, data=np.arange(n, dtype=np.int64)[:, None])
             g = f["snapshots"].create_group(name)
             g.attrs.update(meta)
             for k, a in data.items():
-                g.create_dataset(k, data=a)
+                ds = g.create_dataset(k, data=a)
+                if k == "kind":
+                    ds.attrs["codes"] = _KIND_TEXT
             if self.dim < 3:
                 xyz = np.zeros((data["x"].shape[0], 3), dtype=np.float64)
                 xyz[:, : self.dim] = data["x"]
@@ -214,9 +228,11 @@ def _data_item(parent: ET.Element, h5_name: str, path: str, ds: h5py.Dataset) ->
 def write_xdmf(h5_path: str | Path, xmf_path: str | Path) -> None:
     """Write an XDMF 3 index of the snapshots of ``h5_path`` to ``xmf_path`` (atomically).
 
-    One temporal collection; each snapshot is a Polyvertex grid with its time, the particle
-    positions as XYZ geometry (``xyz`` when present, else ``x``) and every other dataset as a
-    node attribute (``Scalar`` for [N], ``Vector`` for [N,2] and [N,3], ``Matrix`` otherwise).
+    One temporal collection; each snapshot is a Polyvertex grid with its time, its topology (the
+    vertex list ``/connectivity``), the particle positions as XYZ geometry (``xyz`` when
+    present, else ``x``) and every other dataset as a node attribute (``Scalar`` for [N] and
+    [N, 1], ``Vector`` for [N,2] and [N,3], ``Matrix`` otherwise).  ParaView, VTK's XDMF readers
+    and meshio read it.
     The HDF5 file is referenced by its path relative to the XDMF file.
     """
     h5_path, xmf_path = Path(h5_path), Path(xmf_path)
@@ -235,15 +251,17 @@ def write_xdmf(h5_path: str | Path, xmf_path: str | Path) -> None:
             grid = ET.SubElement(series, "Grid", {"Name": f"snapshot_{name}",
                                                   "GridType": "Uniform"})
             ET.SubElement(grid, "Time", {"Value": repr(float(g.attrs["t"]))})
-            ET.SubElement(grid, "Topology", {"TopologyType": "Polyvertex",
-                                             "NumberOfElements": str(n), "NodesPerElement": "1"})
+            topo = ET.SubElement(grid, "Topology", {"TopologyType": "Polyvertex",
+                                                    "NumberOfElements": str(n), "NodesPerElement": "1"})
+            if _CONNECTIVITY in f and f[_CONNECTIVITY].shape[0] == n:
+                _data_item(topo, h5_name, f"/{_CONNECTIVITY}", f[_CONNECTIVITY])
             geometry = ET.SubElement(grid, "Geometry", {"GeometryType": "XYZ"})
             _data_item(geometry, h5_name, f"{base}/{geo}", g[geo])
             for k in sorted(g):
                 if k in ("x", _PADDED):
                     continue
                 ds = g[k]
-                if ds.ndim == 1:
+                if ds.ndim == 1 or (ds.ndim == 2 and ds.shape[1] == 1):   # [N, 1]: 1D vectors are scalars
                     atype = "Scalar"
                 elif ds.ndim == 2 and ds.shape[1] in (2, 3):
                     atype = "Vector"
