@@ -57,6 +57,7 @@ import numpy as np
 
 from ..eos import get_eos, to_conservative, to_primitive
 from ..errors import ConfigError
+from ..plotting import subplots
 from ..reference.radial import RadialSolution, radial_tait_reference
 from ..schema import Key, join_problems, show
 from ..simulation import Problem
@@ -243,14 +244,11 @@ def plot_radial(out: Path, p: Particles, t: float, P, ref: RadialSolution, eos_k
                 title: str = "") -> None:
     """``density_vs_radius.png`` (all fluid particles vs the reference) and ``density_field.png``
     (particles coloured by density)."""
-    import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     r, _, rho, x = radial_fields(p, P, eos_kind)
     head = title.replace(": ", "\n", 1) + f", t={t:.4g} s"
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    fig, ax = subplots(figsize=(6.4, 4.2))
     ax.plot(r, rho, ".", ms=1.5, color="tab:blue", alpha=0.6, label=f"particles ({r.size})")
     ax.plot(ref.r, ref.rho, "k-", lw=1.2, label="radial reference")
     ax.set_xlabel("r [m]")
@@ -260,9 +258,8 @@ def plot_radial(out: Path, p: Particles, t: float, P, ref: RadialSolution, eos_k
     ax.set_title(head, fontsize=8)
     fig.tight_layout()
     fig.savefig(out / "density_vs_radius.png", dpi=130)
-    plt.close(fig)
 
-    fig, ax = plt.subplots(figsize=(5.6, 4.8))
+    fig, ax = subplots(figsize=(5.6, 4.8))
     ms = max(0.3, min(6.0, 2.0e4 / max(r.size, 1)))
     sc = ax.scatter(x[:, 0], x[:, 1], c=rho, s=ms, cmap="viridis", linewidths=0)
     fig.colorbar(sc, ax=ax, label="density [kg/m^3]")
@@ -272,4 +269,3 @@ def plot_radial(out: Path, p: Particles, t: float, P, ref: RadialSolution, eos_k
     ax.set_title(head, fontsize=8)
     fig.tight_layout()
     fig.savefig(out / "density_field.png", dpi=130)
-    plt.close(fig)

@@ -46,6 +46,7 @@ from ..config import effective_beta
 from ..eos import get_eos, to_conservative, to_primitive
 from ..errors import ConfigError
 from ..kernels import get_kernel
+from ..plotting import colormap, subplots
 from ..reference.viscous import channel_startup, channel_steady, channel_u_max
 from ..schema import Key, join_problems, show
 from ..simulation import Problem
@@ -215,10 +216,7 @@ def pick_times(times, k: int = 7) -> list[int]:
 def plot_profiles(out: Path, cfg: Mapping, title: str = "", fname: str = "profiles.png") -> None:
     """``profiles.png``: u(y) of every fluid particle at up to seven output times (read back
     from ``fields.h5``) with the exact profiles, and the normalised L-infinity error history."""
-    import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     from ..io import read_snapshots
 
@@ -226,8 +224,8 @@ def plot_profiles(out: Path, cfg: Mapping, title: str = "", fname: str = "profil
     d = drives(cfg)
     u_max = channel_u_max(**d)
     yf = np.linspace(0.0, d["gap"], 401)
-    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(10.5, 4.2))
-    colors = plt.cm.viridis(np.linspace(0.0, 0.9, 7))
+    fig, (ax, ax2) = subplots(1, 2, figsize=(10.5, 4.2))
+    colors = colormap("viridis")(np.linspace(0.0, 0.9, 7))
     for ci, i in enumerate(pick_times([t for t, _ in snaps])):
         t, f = snaps[i]
         fl = f["kind"] == int(Kind.FLUID)
@@ -252,4 +250,3 @@ def plot_profiles(out: Path, cfg: Mapping, title: str = "", fname: str = "profil
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     fig.savefig(Path(out) / fname, dpi=120)
-    plt.close(fig)

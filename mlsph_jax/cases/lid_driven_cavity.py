@@ -61,6 +61,7 @@ import numpy as np
 from ..boundaries import BOUNDARIES, Wall
 from ..eos import get_eos, to_conservative, to_primitive
 from ..errors import ConfigError
+from ..plotting import subplots
 from ..reference import ghia
 from ..schema import Key, join_problems, show
 from ..simulation import Problem
@@ -263,15 +264,12 @@ def cavity_metrics(p: Particles, P, cfg: Mapping, scheme, re_table: int | None) 
 
 def plot_centerlines(path: Path, p: Particles, P, cfg: Mapping, scheme, title: str = "") -> None:
     """u(x = L/2, y) and v(x, y = L/2) against Ghia et al. (1982) (thesis Fig. 3.22)."""
-    import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     line = np.linspace(0.0, 1.0, 201)
     u_line, v_line = centerlines(p, P, cfg, scheme, line, line)
     re_table = ghia.table_reynolds(cfg["case"]["re"])
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4.4))
+    fig, (a1, a2) = subplots(1, 2, figsize=(10, 4.4))
     a1.plot(u_line, line, "-", color="tab:blue", label="MLSPH-ALE (MLS fit)")
     a2.plot(line, v_line, "-", color="tab:blue", label="MLSPH-ALE (MLS fit)")
     if re_table is not None:
@@ -285,7 +283,6 @@ def plot_centerlines(path: Path, p: Particles, P, cfg: Mapping, scheme, title: s
                 k = np.flatnonzero(np.isclose(xa, cc))
                 a2.plot(xa[k], va[k], "rx", ms=6, label="misprint (excluded)")
     finish_centerline_figure(fig, a1, a2, title, path)
-    plt.close(fig)
 
 
 def finish_centerline_figure(fig, a1, a2, title: str, path: Path) -> None:
@@ -309,10 +306,7 @@ def plot_field(path: Path, p: Particles, P, cfg: Mapping, scheme, title: str = "
     """Speed contours with streamlines (thesis Fig. 3.23): the particle velocities (fluid and
     ghosts) interpolated linearly (``scipy.interpolate.griddata``) onto a ``grid`` x ``grid``
     mesh of the cavity."""
-    import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from scipy.interpolate import griddata
 
     c = cfg["case"]
@@ -322,7 +316,7 @@ def plot_field(path: Path, p: Particles, P, cfg: Mapping, scheme, title: str = "
     X, Y = np.meshgrid(g, g)
     U = griddata(x, vel[:, 0], (X, Y), method="linear") / u_lid
     V = griddata(x, vel[:, 1], (X, Y), method="linear") / u_lid
-    fig, ax = plt.subplots(figsize=(6.0, 5.2))
+    fig, ax = subplots(figsize=(6.0, 5.2))
     cs = ax.contourf(X / L, Y / L, np.hypot(U, V), levels=20, cmap="viridis")
     fig.colorbar(cs, ax=ax, label="|u| / u_lid")
     ax.streamplot(g / L, g / L, U, V, density=1.6, color="w", linewidth=0.6, arrowsize=0.6)
@@ -334,4 +328,3 @@ def plot_field(path: Path, p: Particles, P, cfg: Mapping, scheme, title: str = "
     ax.set_title(title.replace(": ", "\n", 1), fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)

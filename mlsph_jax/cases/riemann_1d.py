@@ -26,6 +26,7 @@ import numpy as np
 
 from ..eos import get_eos, to_conservative, to_primitive
 from ..errors import ConfigError
+from ..plotting import subplots
 from ..reference.riemann import EOS_KINDS, ExactRiemann
 from ..schema import Key, join_problems, show, suggest
 from ..simulation import Problem
@@ -233,16 +234,13 @@ def new_extremum(x, f, exact_fn, w: float) -> float:
 
 def plot_profiles(path: Path, p: Particles, t: float, P, exact: ExactRiemann, eos_kind: str, title: str = ""):
     """Particle profiles of rho, u, p (and e) against the exact solution."""
-    import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     x, _, f = profile_fields(p, P, eos_kind)
     xf = np.linspace(x.min(), x.max(), 2000)
     ex = exact(xf, t)
     names = [k for k in ("rho", "u", "p", "e") if k in f]
-    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.4))
+    fig, axes = subplots(1, len(names), figsize=(4.2 * len(names), 3.4))
     labels = {"rho": "density", "u": "velocity", "p": "pressure", "e": "internal energy"}
     for ax, k in zip(axes, names, strict=True):
         ax.plot(xf, ex[k], "k-", lw=1.2, label="exact")
@@ -253,4 +251,3 @@ def plot_profiles(path: Path, p: Particles, t: float, P, exact: ExactRiemann, eo
     fig.suptitle(f"{title}  t={t:.4g}", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)

@@ -66,6 +66,7 @@ import numpy as np
 from ..eos import get_eos, to_conservative, to_primitive
 from ..errors import ConfigError
 from ..kernels import safe_norm
+from ..plotting import subplots
 from ..schema import Key, join_problems, show
 from ..simulation import Problem
 from ..state import Domain, Kind, Particles, make_particles
@@ -342,10 +343,7 @@ def plot_fields(path: Path, p: Particles, t: float, P, exact: TaylorGreen, eos_k
                 title: str = "") -> None:
     """u, v, p (gauge) at time ``t`` (top) and their differences from the exact solution
     (bottom; the pressure difference after removing both volume-weighted means)."""
-    import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     f = fields(p, P, eos_kind)
     x = np.mod(f["x"], exact.length)
@@ -355,7 +353,7 @@ def plot_fields(path: Path, p: Particles, t: float, P, exact: TaylorGreen, eos_k
     top = [("u", f["vel"][:, 0]), ("v", f["vel"][:, 1]), ("p - p0", f["p"])]
     bottom = [("u - u_exact", f["vel"][:, 0] - ue[:, 0]), ("v - v_exact", f["vel"][:, 1] - ue[:, 1]),
               ("p' - p'_exact (means removed)", dp)]
-    fig, axes = plt.subplots(2, 3, figsize=(13.0, 8.0))
+    fig, axes = subplots(2, 3, figsize=(13.0, 8.0))
     ms = max(0.5, min(30.0, 6.0e4 / max(len(x), 1)))
     for row, panels in zip(axes, (top, bottom), strict=True):
         for ax, (name, val) in zip(row, panels, strict=True):
@@ -370,7 +368,6 @@ def plot_fields(path: Path, p: Particles, t: float, P, exact: TaylorGreen, eos_k
     fig.suptitle(f"{title}\nt = {t:.4g}", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def read_timeseries(path: Path) -> dict[str, np.ndarray] | None:
@@ -387,17 +384,14 @@ def read_timeseries(path: Path) -> dict[str, np.ndarray] | None:
 def plot_decay(path: Path, series_path: Path, exact: TaylorGreen, title: str = "") -> None:
     """E_k / E_k(0) against F^2, max |u| / U0 against F and the centre pressure against the
     exact one, from the run's time series."""
-    import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     s = read_timeseries(series_path)
     if s is None or len(s["t"]) < 2:
         return
     t = s["t"]
     tf = np.linspace(0.0, float(t.max()), 400)
-    fig, axes = plt.subplots(1, 3, figsize=(13.0, 3.8))
+    fig, axes = subplots(1, 3, figsize=(13.0, 3.8))
     ax = axes[0]
     ax.plot(tf, exact.decay(tf) ** 2, "k-", lw=1.2, label="exact $F^2$")
     ax.plot(t, s["ke"] / s["ke"][0], "o", ms=4, mfc="none", label="particles")
@@ -418,4 +412,3 @@ def plot_decay(path: Path, series_path: Path, exact: TaylorGreen, title: str = "
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
