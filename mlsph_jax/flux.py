@@ -110,13 +110,15 @@ class AreaNormal:
 
 
 class PairNormal:
-    """n = n_ij, the unit vector from i to j (identical to ``area`` for kernel SPH-ALE)."""
+    """n = n_ij, the unit vector from i to j (identical to ``area`` for kernel SPH-ALE).  The
+    dissipation uses |n_ij . A_ij|: MLS area vectors need not point along n_ij, and a negative
+    projection would make the dissipation term anti-diffusive."""
 
     needs_pair_vector = True
 
     @staticmethod
     def project(relm, relp, A, n_pair):
-        return _dot(relm, n_pair), _dot(relp, n_pair), _dot(n_pair, A)
+        return _dot(relm, n_pair), _dot(relp, n_pair), jnp.abs(_dot(n_pair, A))
 
 
 DISSIPATION_NORMALS.register("area", AreaNormal())

@@ -150,7 +150,10 @@ def mood_substep(z: Particles, params: Params, dt, geom, scheme, euler):
     """The MOOD-limited forward-Euler sub-step of one stage.
 
     ``euler(z_with_ppd) -> (E, dz)`` computes the candidate for a PPD map (the caller's rhs and
-    update).  Returns ``(E, ppd, n_evals, unresolved)``.
+    update).  Returns ``(E, ppd, n_evals, unresolved)``: ``unresolved`` is set when flags remain
+    after ``mood_max_iter`` iterations, or when a particle already at the parachute (degree 0)
+    has an inadmissible candidate (PAD) — first order is the last resort, so such a stage is never
+    accepted silently.
     """
     high = scheme.reconstruction_degree
     fluid = z.kind == Kind.FLUID
@@ -177,7 +180,12 @@ def mood_substep(z: Particles, params: Params, dt, geom, scheme, euler):
 
     (E, ppd, f, n), _ = jax.lax.scan(body, (E0, ppd0, f0, jnp.asarray(1, jnp.int32)), None,
                                      length=scheme.mood_max_iter)
-    return E, ppd, n, jnp.any(f)
+    # the parachute itself must be admissible: a first-order particle whose candidate fails PAD
+    # cannot be demoted further, so the stage is unresolved (the run's status then stops it)
+    U_E = jax.lax.stop_gradient(E.q / E.vol[:, None])
+    pad_fail = ~admissible(U_E, scheme, params) if scheme.mood_pad else ~jnp.all(jnp.isfinite(U_E), axis=1)
+    parachute_failed = fluid & (ppd == 0) & pad_fail
+    return E, ppd, n, jnp.any(f) | jnp.any(parachute_failed)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -142,6 +142,24 @@ def test_mood_rejects_the_overshooting_candidate():
     np.testing.assert_allclose(np.asarray(E.q)[far], np.asarray(unlimited.q)[far], rtol=1e-14, atol=1e-16)
 
 
+def test_an_inadmissible_parachute_candidate_leaves_the_stage_unresolved():
+    """First order is MOOD's last resort: when even the degree-0 candidate fails PAD (here a time
+    step ~40x the CFL limit drives densities negative), the stage is reported unresolved instead
+    of being accepted."""
+    p, domain, _ = _pulse()
+    mood = Scheme(eos="ideal_gas", reconstruction_degree=2, beta=2.0, limiter="mood")
+    dt = 40 * 0.4 / 80 / (1.0 + np.sqrt(1.4 * 4.0))
+    geom, euler = _substep(mood, p, domain, dt)
+    first = euler(p.replace(ppd=jnp.zeros_like(p.ppd)))
+    assert not np.all(np.asarray(admissible(first.q / first.vol[:, None], mood, GAS))), \
+        "the constructed step must make the first-order candidate inadmissible"
+    E, ppd, _, unresolved = jax.jit(lambda z: mood_substep(z, GAS, dt, geom, mood, euler))(p)
+    assert bool(unresolved)
+    _, euler_cfl = _substep(mood, p, domain, dt / 40)
+    fine = mood_substep(p, GAS, dt / 40, geom, mood, euler_cfl)[3]     # a CFL step: resolved
+    assert not bool(fine)
+
+
 # ---------------------------------------------------------------------- built-in Riemann configs
 CONFIGS = {"r1": "configs/riemann_r1_tait.toml", "r2": "configs/riemann_r2_tammann.toml",
            "sod": "configs/sod_ideal_gas.toml"}

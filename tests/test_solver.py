@@ -226,3 +226,36 @@ def test_frozen_particles_do_not_move_or_change(tmp_path):
     frozen = np.asarray(pb.particles.kind) == Kind.FROZEN
     np.testing.assert_array_equal(np.asarray(res.particles.x)[frozen], np.asarray(pb.particles.x)[frozen])
     np.testing.assert_array_equal(np.asarray(res.particles.q)[frozen], np.asarray(pb.particles.q)[frozen])
+
+
+@pytest.mark.parametrize("normal", ["area", "pair"])
+def test_rusanov_dissipation_is_never_anti_diffusive(normal):
+    """The dissipation 1/2 S (U+ - U-) (n . A) must oppose the jump for every normal: with the
+    `pair` normal an MLS area vector pointing away from n_ij (n . A < 0) used to flip its sign."""
+    from mlsph_jax.eos import get_eos, to_conservative
+    from mlsph_jax.flux import rusanov_dot_area
+    from mlsph_jax.state import Params
+
+    eos, P = get_eos("ideal_gas"), Params({"eos.gamma": 1.4})
+    Um = to_conservative(jnp.asarray([1.0]), jnp.zeros((1, 2)), jnp.asarray([1.0]), eos, P)
+    Up = to_conservative(jnp.asarray([2.0]), jnp.zeros((1, 2)), jnp.asarray([1.0]), eos, P)
+    A = jnp.asarray([[-0.3, 0.1]])          # points against the pair direction
+    n_pair = jnp.asarray([[1.0, 0.0]])
+    G = rusanov_dot_area(Um, Up, None, A, n_pair, eos, P, normal=normal)
+    # at rest with equal pressures the mass flux is pure dissipation: -1/2 S (rho+ - rho-) |n . A|
+    assert float(G[0, 0]) < 0.0
+
+
+def test_reverse_pair_index_is_64_bit_when_n_times_k_overflows_int32():
+    """The flat index j K + rev of the reverse-pair gather (used by the convective, viscous and
+    MLS-area terms alike, mlsph_jax.stencil) must not wrap once N K >= 2^31."""
+    import jax
+
+    from mlsph_jax.stencil import flat_reverse_index
+
+    big = jax.ShapeDtypeStruct((2**27, 16), jnp.int32)
+    small = jax.ShapeDtypeStruct((1000, 16), jnp.int32)
+    assert jax.eval_shape(lambda j, r: flat_reverse_index(j, r, 16), big, big).dtype == jnp.int64
+    assert jax.eval_shape(lambda j, r: flat_reverse_index(j, r, 16), small, small).dtype == jnp.int32
+    j = jnp.asarray([[2**27 - 1]], jnp.int32)
+    assert int(flat_reverse_index(j, jnp.asarray([[15]], jnp.int32), 16)[0, 0]) == 2**31 - 1
