@@ -8,7 +8,7 @@ relative error; writes experiments/output/calibrate_viscosity/{target.csv, histo
 calibration.png}.  The same fit from the command line:
 
     mlsph calibrate configs/taylor_green_2d.toml --fit physics.mu --target target.csv \\
-        --set case.n=16 time.t_end=0.2 case.re=66.66666666666667 --n-steps 100 --record-every 10
+        --set case.n=16 time.t_end=0.2 case.re=66.66666666666667 --n-steps 120 --record-every 10
 
 (the case derives mu = rho0 U0 L / Re from case.re, so Re = 66.7 starts the fit at mu = 0.015,
 50 % off; see ``--help`` of this script for the resolution options).
@@ -33,7 +33,7 @@ from mlsph_jax.sensitivity import calibrate, write_calibration
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def run(n: int = 16, t_end: float = 0.2, steps: int = 10, lr: float | None = None, n_steps: int = 100,
+def run(n: int = 16, t_end: float = 0.2, steps: int = 10, lr: float | None = None, n_steps: int = 120,
         record_every: int = 10, start_factor: float = 1.5, progress: bool = True, out: Path | None = None,
         optimizer: str = "lbfgs"):
     cfg = config.load(ROOT / "configs/taylor_green_2d.toml", [f"case.n={n}", f"time.t_end={t_end}"])
@@ -68,7 +68,8 @@ def main():
     ap.add_argument("--optimizer", default="lbfgs", choices=("lbfgs", "adam"))
     ap.add_argument("--lr", type=float, default=None,
                     help="Adam's learning rate (default 0.05); with L-BFGS a fixed step instead of the line search")
-    ap.add_argument("--n-steps", type=int, default=100, help="SSP-RK3 steps of each run")
+    ap.add_argument("--n-steps", type=int, default=120,
+                    help="SSP-RK3 steps of each run (at least t_end / the CFL step: 117 for the defaults)")
     ap.add_argument("--out", default=str(ROOT / "experiments" / "output" / "calibrate_viscosity"))
     args = ap.parse_args()
     res = run(args.n, args.t_end, args.steps, args.lr, args.n_steps, out=Path(args.out), optimizer=args.optimizer)

@@ -158,6 +158,12 @@ def _diff_kw(args) -> dict:
     return {"n_steps": args.n_steps, "record_every": args.record_every, "checkpoint": args.checkpoint}
 
 
+def _cfl_kw(cfg) -> dict:
+    """The config's CFL numbers (time.cfl, time.cfl_viscous) for the differentiated runs' step checks."""
+    t = cfg.get("time", {})
+    return {"cfl": t.get("cfl", 0.3), "cfl_viscous": t.get("cfl_viscous", 0.125)}
+
+
 def cmd_sensitivity(args) -> int:
     import json
 
@@ -167,7 +173,10 @@ def cmd_sensitivity(args) -> int:
     cfg, stem = _load(args.config, args.set)
     problem = build_problem(cfg)
     t0 = time.perf_counter()
-    res = sensitivity(problem, args.wrt, args.of, check_fd=args.check_fd, fd_rel=args.fd_rel, **_diff_kw(args))
+    # every forward run is checked (a failure raises SimulationError: exit 1; an --n-steps above the
+    # CFL limit of time.cfl is refused before running: exit 2)
+    res = sensitivity(problem, args.wrt, args.of, check_fd=args.check_fd, fd_rel=args.fd_rel,
+                      **_cfl_kw(cfg), **_diff_kw(args))
     res["wall_time_s"] = time.perf_counter() - t0
     print(f"{args.of} = {res['value']:.10g} after {res['n_steps']} steps of dt = {res['dt']:.4g}")
     for k, e in res["gradients"].items():
@@ -198,7 +207,7 @@ def cmd_calibrate(args) -> int:
         tqdm.write(f"iteration {h['iteration']:4d}  loss {h['loss']:.6e}  {ps}")  # above the bar
 
     res = calibrate(problem, args.fit, target, steps=args.steps, lr=args.lr, progress=not args.quiet,
-                    callback=show, optimizer=args.optimizer, **_diff_kw(args))
+                    callback=show, optimizer=args.optimizer, **_cfl_kw(cfg), **_diff_kw(args))
     out = Path(args.out) if args.out else Path("out") / f"{stem}_calibration"
     write_calibration(out, res)
     print(f"fitted {res['final']} (loss {res['loss']:.3e}); wrote {out / 'history.json'} and {out / 'calibration.png'}")

@@ -2,21 +2,33 @@
 
 :func:`make_simulate` turns a :class:`~mlsph_jax.simulation.Problem` into a pure function that
 runs a fixed number of SSP-RK3 steps of fixed size and returns the final state, the time series
-of differentiable diagnostics and the neighbour-overflow flag.  It is ``jit``-able and
+of differentiable diagnostics and the run's status word (:class:`~mlsph_jax.status.Status`).  It is ``jit``-able and
 differentiable with ``jax.grad``, ``jax.jacfwd`` and ``jax.vjp`` with respect to every float in
 the parameter pytree (EOS constants, viscosity, body force, wall velocities, ...), the initial
 fields and the particle positions.
 
 What carries no gradient: the topology (neighbour indices, fixed-capacity lists sized on the
 host from the initial state; rebuilt per stage for moving particles with the same capacity) and
-the MOOD flags (:mod:`mlsph_jax.mood`).  A neighbour overflow during a differentiated run is
-reported in ``SimOutput.overflow``; :func:`run_differentiable` raises
-:class:`~mlsph_jax.errors.NeighborOverflowError` on it (never a silent truncation).
+the MOOD flags (:mod:`mlsph_jax.mood`).
+
+Failures are never silent.  Every step computes, inside ``jit``, the status of its candidate
+state as the driver does (NaN/inf, inadmissible or non-positive density/volume, neighbour-list
+overflow by cause, a fixed step above the CFL limit of the current state, unresolved MOOD
+flags; :func:`mlsph_jax.integrate.step_status`).  The first failing step is not committed: it
+and all later steps become no-ops (``jnp.where``, so the function stays differentiable) that
+keep the last good state, and ``SimOutput`` carries ``status``, ``failed_step``,
+``failed_time`` and ``bad_particle``.  :func:`run_differentiable` and :func:`check` raise
+:class:`~mlsph_jax.errors.SimulationError` (``NeighborOverflowError`` for an overflow) naming the
+step, time, particle and cause; inside ``jax.grad`` return the ``SimOutput`` as auxiliary
+output and call :func:`check` on it afterwards (:mod:`mlsph_jax.sensitivity` does).
 
 Time step: fixed, ``dt = t_end / n_steps``.  An adaptive CFL step would make the number of steps
 depend on the parameters; with a fixed count the outputs are smooth functions of them.  By
 default ``n_steps`` comes from the initial CFL step of the problem with a safety factor
-(:func:`default_steps`).
+(:func:`default_steps`); a given ``n_steps`` whose ``dt`` exceeds the CFL limit of the initial
+state (with ``cfl``, ``cfl_viscous``) is refused before running with an
+:class:`~mlsph_jax.errors.InputError` naming the smallest admissible step count
+(:func:`mlsph_jax.run.check_fixed_step`).
 
 Reverse-mode memory (``checkpoint``):
 
@@ -42,11 +54,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import neighbors as nb
-from .errors import InputError, NeighborOverflowError
-from .integrate import cfl_dt, make_stage_geometry, ssp_rk3_step
-from .rhs import geometry
+from .errors import InputError
+from .integrate import ssp_rk3_step, step_status
+from .run import cfl_limit, check_fixed_step, default_steps, setup_run
 from .state import Kind, Params, Particles
+from .status import Status, failure, state_status
 
 CHECKPOINTS = ("none", "step", "nested")
 
@@ -55,13 +67,28 @@ CHECKPOINTS = ("none", "step", "nested")
 @dataclasses.dataclass(frozen=True)
 class SimOutput:
     """Result of a differentiable run: final particles, ``series[name][k]`` recorded after every
-    ``record_every`` steps (plus the initial value at index 0), the record times, and whether a
-    neighbour list overflowed."""
+    ``record_every`` steps (plus the initial value at index 0), the record times, and the run's
+    status: ``status`` (:class:`~mlsph_jax.status.Status` bits, 0 = ok), ``failed_step`` (the
+    first failing step, 1-based; 0 for a bad initial state; -1 if none), ``failed_time`` (the
+    time that step started from) and ``bad_particle`` (first offending particle or -1).  After a
+    failure ``particles`` and the rest of ``series`` are the last good state."""
 
     particles: Particles
     series: dict
     times: jax.Array
-    overflow: jax.Array
+    status: jax.Array
+    failed_step: jax.Array
+    failed_time: jax.Array
+    bad_particle: jax.Array
+
+    @property
+    def ok(self) -> jax.Array:
+        return self.status == 0
+
+    @property
+    def overflow(self) -> jax.Array:
+        """Whether a neighbour list overflowed (any of the three neighbour bits)."""
+        return (self.status & int(Status.NEIGHBOR_OVERFLOW)) != 0
 
 
 def kinetic_energy(p: Particles, params: Params) -> jax.Array:
@@ -83,16 +110,11 @@ def base_diagnostics(p: Particles, t, params: Params) -> dict:
     return out
 
 
-def default_steps(problem, cfl: float = 0.3, safety: float = 0.8, cfl_viscous: float = 0.125) -> int:
-    """Fixed step count for ``t_end``: the initial CFL step times ``safety`` (host side)."""
-    dt0 = float(cfl_dt(problem.particles, problem.params, problem.scheme, cfl, cfl_viscous))
-    return max(1, math.ceil(problem.t_end / (safety * dt0)))
-
-
 def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = None,
                   checkpoint: str = "nested", segment: int | None = None, policy=None,
                   record_every: int = 1, diagnostics: Callable | None = None,
-                  headroom: float = 1.6) -> Callable[[Params, Particles], SimOutput]:
+                  headroom: float = 1.6, cfl: float = 0.3, cfl_viscous: float = 0.125,
+                  nspec=None) -> Callable[[Params, Particles], SimOutput]:
     """Build ``simulate(params, particles) -> SimOutput`` for ``problem`` (module docstring).
 
     ``diagnostics(particles, t, params) -> dict`` of differentiable scalars recorded every
@@ -101,20 +123,27 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
     ``record_every``.  Nested segments are whole multiples of ``record_every`` (a record is taken
     at the end of a block of steps), so keep ``record_every`` <= ~sqrt(n_steps) for the nested
     memory saving: recording only at the end leaves one segment, i.e. the storage of ``"step"``.
+
+    ``cfl``/``cfl_viscous``: the CFL numbers of the step-size checks: ``n_steps`` (default
+    :func:`default_steps`) is refused with an :class:`~mlsph_jax.errors.InputError` if
+    ``t_end / n_steps`` exceeds the CFL limit of ``problem.particles``, and a step whose state's
+    limit drops below ``dt`` fails with ``Status.DT_ABOVE_CFL``.  ``headroom``: neighbour
+    capacity headroom; the capacity is fixed for the whole run (an overflow is a failure).
+    ``nspec``: a :class:`~mlsph_jax.neighbors.NeighborSpec` to use instead of sizing one
+    (:func:`mlsph_jax.run.setup_run`).
     """
     if checkpoint not in CHECKPOINTS:
         raise InputError(f"invalid checkpoint={checkpoint!r}; allowed: {', '.join(CHECKPOINTS)}")
     t_end = float(problem.t_end if t_end is None else t_end)
-    n_steps = default_steps(problem) if n_steps is None else int(n_steps)
+    n_steps = default_steps(problem, cfl=cfl, cfl_viscous=cfl_viscous, t_end=t_end) if n_steps is None \
+        else int(n_steps)
     if n_steps < 1 or record_every < 1 or n_steps % record_every:
         raise InputError(f"invalid n_steps={n_steps} / record_every={record_every}; allowed: positive integers "
                          "with n_steps a multiple of record_every")
+    check_fixed_step(problem, n_steps, t_end, cfl=cfl, cfl_viscous=cfl_viscous)
     dt = t_end / n_steps
-    scheme, domain, boundary = problem.scheme, problem.domain, problem.boundary
-    p0 = problem.particles
-    h0 = scheme.beta * np.asarray(p0.vol) ** (1.0 / p0.dim)
-    cell = scheme.support * float(h0.max()) * (2.5 if p0.dim == 1 else 1.5) if scheme.moving else None
-    nspec, nl0 = nb.allocate(np.asarray(p0.x), h0, domain, support=scheme.support, headroom=headroom, cell_size=cell)
+    scheme, boundary = problem.scheme, problem.boundary
+    setup = setup_run(problem, headroom=headroom, nspec=nspec)
     extra = getattr(problem, "differentiable_diagnostics", None)
 
     def diag(p, t, params):
@@ -132,18 +161,24 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
     blocks_per_seg = seg // record_every
 
     def simulate(params: Params, particles: Particles) -> SimOutput:
-        if scheme.moving:
-            geom_fn = make_stage_geometry(scheme, domain, nspec)
-            overflow0 = jnp.asarray(False)
-        else:
-            g = geometry(particles.x, particles.vol, nl0, scheme, domain)
-            geom_fn = lambda p: g  # noqa: E731
-            overflow0 = g.overflow
+        geom_fn = setup.geometry_fn(particles)
+        st0, bad0 = state_status(particles, params, scheme)
+        st0 = st0 | setup.initial_status()
+        failed0 = jnp.where(st0 != 0, 0, -1).astype(jnp.int32)
+        # carry: (state, steps taken, status, first failing step, first offending particle)
+        carry0 = (particles, jnp.asarray(0, jnp.int32), st0, failed0, bad0)
 
         def step(carry, _):
-            p, ovf = carry
-            p2, o, _stats = ssp_rk3_step(p, params, dt, scheme, geom_fn, boundary)
-            return (p2, ovf | o), None
+            p, k, st, failed, bad = carry
+            p2, ovf, stats = ssp_rk3_step(p, params, dt, scheme, geom_fn, boundary)
+            st2, bad2 = step_status(p, p2, params, scheme, dt, ovf, stats, dt_fixed=True, cfl=cfl,
+                                    cfl_viscous=cfl_viscous)
+            alive = st == 0
+            commit = alive & (st2 == 0)   # a failing step is not committed; later steps are no-ops
+            p = jax.tree_util.tree_map(lambda a, b: jnp.where(commit, a, b), p2, p)
+            new_fail = alive & (st2 != 0)
+            return (p, k + 1, jnp.where(alive, st2, st), jnp.where(new_fail, k + 1, failed),
+                    jnp.where(new_fail, bad2, bad)), None
 
         if checkpoint in ("step", "nested"):
             step = jax.checkpoint(step, policy=policy)
@@ -159,18 +194,23 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
 
             segment_fn = jax.checkpoint(segment_fn, policy=policy)
             ks = jnp.arange(n_rec).reshape(n_rec // blocks_per_seg, blocks_per_seg)
-            (pf, ovf), rec = jax.lax.scan(segment_fn, (particles, overflow0), ks)
+            (pf, _, st, failed, bad), rec = jax.lax.scan(segment_fn, carry0, ks)
             rec = jax.tree_util.tree_map(lambda a: a.reshape((n_rec,) + a.shape[2:]), rec)
         else:
-            (pf, ovf), rec = jax.lax.scan(block, (particles, overflow0), jnp.arange(n_rec))
+            (pf, _, st, failed, bad), rec = jax.lax.scan(block, carry0, jnp.arange(n_rec))
         first = diag(particles, 0.0, params)
         series = {k: jnp.concatenate([jnp.asarray(first[k])[None], rec[k]]) for k in rec}
         times = jnp.arange(n_rec + 1) * (record_every * dt)
-        return SimOutput(pf, series, times, ovf)
+        failed_time = jnp.maximum(failed - 1, 0) * dt
+        return SimOutput(pf, series, times, st, failed, failed_time, bad)
 
     simulate.n_steps = n_steps
     simulate.dt = dt
     simulate.record_every = record_every
+    simulate.setup = setup
+    simulate.problem = problem
+    simulate.cfl = cfl
+    simulate.cfl_viscous = cfl_viscous
     return simulate
 
 
@@ -182,18 +222,45 @@ def _segment(n_steps: int, record_every: int) -> int:
 
 
 def run_differentiable(simulate, params: Params, particles: Particles) -> SimOutput:
-    """Run ``simulate`` and raise on a neighbour overflow (host check; not for use inside grad —
-    there check ``SimOutput.overflow`` yourself or call :func:`check_overflow` afterwards)."""
+    """Run ``simulate`` and raise on a failure (:func:`check`; a host check, not for use inside
+    ``grad``: there return the ``SimOutput`` as auxiliary output and :func:`check` it after)."""
     out = simulate(params, particles)
-    check_overflow(out)
+    check(out, simulate, params)
     return out
 
 
-def check_overflow(out: SimOutput) -> None:
-    if bool(out.overflow):
-        raise NeighborOverflowError(
-            "neighbour-list capacity overflowed during a differentiated run (its capacity is fixed so the "
-            "topology carries no gradient); rerun with a larger headroom (make_simulate(..., headroom=...))")
+def check(out: SimOutput, simulate=None, params: Params | None = None) -> None:
+    """Raise :class:`~mlsph_jax.errors.SimulationError` (``NeighborOverflowError`` if the only
+    cause is a neighbour-list overflow) if the run's status is not ok, naming the first failing
+    step, the time it started from, the first offending particle and the cause (host side).
+    With the ``simulate`` function and the ``params`` of the run, a step above the CFL limit
+    also names the step count that the last good state needs."""
+    st = Status(int(out.status))
+    if st == Status.OK:
+        return
+    i = int(out.bad_particle)
+    x = np.asarray(out.particles.x[i]) if i >= 0 else None
+    detail = ""
+    if st & Status.NEIGHBOR_OVERFLOW:
+        detail = ("the neighbour capacity of a differentiated run is fixed (sized on the host from the initial "
+                  "state, so the topology carries no gradient); rerun with a larger headroom "
+                  "(make_simulate(..., headroom=...))")
+    elif st & Status.DT_ABOVE_CFL:
+        detail = ("the flow sped up: use more steps (make_simulate(..., n_steps=...); mlsph: --n-steps, or a "
+                  "larger CFL number with --set time.cfl=...)")
+        if simulate is not None and params is not None and hasattr(simulate, "problem"):
+            t_end = simulate.n_steps * simulate.dt
+            limit = cfl_limit(simulate.problem, cfl=simulate.cfl, cfl_viscous=simulate.cfl_viscous,
+                              particles=out.particles, params=params)
+            if np.isfinite(limit) and limit > 0:
+                detail += (f"; dt = {simulate.dt:.4g} but the state at t={float(out.failed_time):.6g} allows "
+                           f"{limit:.4g} (cfl={simulate.cfl}), i.e. n_steps >= {math.ceil(t_end / limit)} for it")
+    raise failure(st, step=int(out.failed_step), time=float(out.failed_time), particle=i, x=x, detail=detail,
+                  last_good="the returned state and the rest of the series are the last good state")
+
+
+#: Backwards-compatible name of :func:`check` (it checks every cause, not only overflow).
+check_overflow = check
 
 
 def param_paths(params: Params) -> list[str]:

@@ -36,8 +36,16 @@ Correspondence with the built-in step (so that ``SSPRK3`` reproduces it to round
   form; ``scheme.limiter == "mood"`` is rejected (use :mod:`mlsph_jax.differentiable`).
 
 What carries no gradient is the same as in :mod:`mlsph_jax.differentiable`: the neighbour
-topology.  A neighbour-list overflow inside the vector field raises at run time
-(``equinox.error_if``) unless ``check_overflow=False``.
+topology, sized by the run layer (:func:`mlsph_jax.run.plan_neighbors`, like ``make_simulate``).
+A neighbour-list overflow inside the vector field raises at run time (``equinox.error_if``)
+unless ``check_overflow=False``.
+
+Failures are never silent: the solve of :func:`make_solve` adds the status word
+(:class:`~mlsph_jax.status.Status`) of its saved states to ``sol.stats`` (``"status"``,
+``"bad_particle"``, ``"failed_save"``: the first saved state that fails, -1 if none), computed
+inside ``jit``; :func:`check` raises :class:`~mlsph_jax.errors.SimulationError` on it, and
+:func:`solve` calls it.  A fixed step above the CFL limit of the initial state is refused before
+solving (:func:`mlsph_jax.run.check_fixed_step`).
 """
 
 from __future__ import annotations
@@ -53,14 +61,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import neighbors as nb
-from .differentiable import default_steps
-from .errors import InputError, NeighborOverflowError
-from .integrate import make_stage_geometry
+from .errors import InputError, NeighborOverflowError, SimulationError
+from .integrate import cfl_dt, cfl_limiting_particle, make_stage_geometry
 from .rhs import geometry, rhs
+from .run import check_fixed_step, default_steps, setup_run
 from .state import Kind, Params, Particles
+from .status import Status, combine, state_status
 
 __all__ = ["SSPRK3", "SSPRK3_TABLEAU", "ode_term", "make_solve", "solve", "to_particles", "final_particles",
-           "neighbor_setup"]
+           "neighbor_setup", "solution_status", "check"]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -117,25 +126,21 @@ class SSPRK3(diffrax.AbstractERK):
 
 def neighbor_setup(problem, nspec_or_nl=None, *, headroom: float = 1.6, particles: Particles | None = None):
     """Host side: ``(nspec, nl0)`` exactly as :func:`mlsph_jax.differentiable.make_simulate` sizes
-    them (same cell size and ``headroom``).  ``nspec_or_nl`` may be a ready
-    :class:`~mlsph_jax.neighbors.NeighborSpec` (an Eulerian list is then built from it) or, for
-    Eulerian schemes, a ready :class:`~mlsph_jax.neighbors.NeighborList` (``nspec`` is then
-    ``None``)."""
-    scheme, domain = problem.scheme, problem.domain
-    p0 = problem.particles if particles is None else particles
-    h0 = scheme.beta * np.asarray(p0.vol) ** (1.0 / p0.dim)
+    them (the run layer, :func:`mlsph_jax.run.setup_run`, same ``headroom``).  ``nspec_or_nl``
+    may be a ready :class:`~mlsph_jax.neighbors.NeighborSpec` (an Eulerian list is then built
+    from it) or, for Eulerian schemes, a ready :class:`~mlsph_jax.neighbors.NeighborList`
+    (``nspec`` is then ``None``)."""
+    scheme = problem.scheme
     if isinstance(nspec_or_nl, nb.NeighborList):
         if scheme.moving:
             raise InputError("invalid nspec_or_nl: a NeighborList for moving particles (scheme.frame="
                              f"{scheme.frame!r}); allowed: a NeighborSpec (lists are rebuilt per evaluation) or None")
         return None, nspec_or_nl
-    if isinstance(nspec_or_nl, nb.NeighborSpec):
-        return nspec_or_nl, nb.update(np.asarray(p0.x), h0, nspec_or_nl)
-    if nspec_or_nl is not None:
+    if nspec_or_nl is not None and not isinstance(nspec_or_nl, nb.NeighborSpec):
         raise InputError(f"invalid nspec_or_nl of type {type(nspec_or_nl).__name__}; allowed: "
                          "NeighborSpec, NeighborList or None")
-    cell = scheme.support * float(h0.max()) * (2.5 if p0.dim == 1 else 1.5) if scheme.moving else None
-    return nb.allocate(np.asarray(p0.x), h0, domain, support=scheme.support, headroom=headroom, cell_size=cell)
+    setup = setup_run(problem, headroom=headroom, particles=particles, nspec=nspec_or_nl)
+    return setup.nspec, setup.nl
 
 
 def _check_scheme(problem):
@@ -160,8 +165,9 @@ def _vector_field(problem, nspec, check_overflow: bool):
         dvol = jnp.where(fluid, dvol, 0.0)
         dq = jnp.where(fluid[:, None], dq, 0.0)
         if check_overflow and stage_geometry is not None:
-            dq = eqx.error_if(dq, geom.overflow, "neighbour-list capacity overflowed in the diffrax vector field; "
-                              "rerun with a larger headroom")
+            dq = eqx.error_if(dq, jnp.asarray(geom.overflow) != 0,   # Status neighbour bits (or a bool)
+                              "neighbour-list capacity overflowed in the diffrax vector field (row or cell "
+                              "capacity, or the cell size); rerun with a larger headroom")
         return dx, dvol, dq
 
     return vf
@@ -244,7 +250,8 @@ def make_solve(problem, solver: diffrax.AbstractSolver | None = None, *, n_steps
                adjoint: diffrax.AbstractAdjoint | None = None, saveat: diffrax.SaveAt | None = None,
                ts=None, max_steps: int | None = None, dt0: float | None = None, nspec_or_nl=None,
                headroom: float = 1.6, check_overflow: bool = True, pcoeff: float = 0.0, icoeff: float = 1.0,
-               throw: bool = True) -> Callable[[Params, Particles], diffrax.Solution]:
+               throw: bool = True, cfl: float = 0.3,
+               cfl_viscous: float = 0.125) -> Callable[[Params, Particles], diffrax.Solution]:
     """Build ``solve(params, particles) -> diffrax.Solution`` (pure, ``jit``/``grad``-able).
 
     * fixed steps (``adaptive=False``, default): exactly ``n_steps`` steps of size
@@ -261,12 +268,21 @@ def make_solve(problem, solver: diffrax.AbstractSolver | None = None, *, n_steps
 
     Eulerian geometry is rebuilt inside ``solve`` from ``particles`` with the host-built list,
     like ``make_simulate``; the neighbour topology is fixed at build time.
+
+    Status: ``sol.stats`` gains ``"status"``, ``"bad_particle"`` and ``"failed_save"``
+    (:func:`solution_status` of the saved states; with fixed steps a saved state whose CFL limit,
+    with ``cfl``/``cfl_viscous``, is below ``dt`` counts as ``DT_ABOVE_CFL``); check it on the host
+    with :func:`check`.  Fixed steps: ``n_steps`` whose ``dt`` exceeds the CFL limit of the
+    initial state is refused with an InputError (:func:`mlsph_jax.run.check_fixed_step`).
     """
     _check_scheme(problem)
     t_end = float(problem.t_end if t_end is None else t_end)
-    n_steps = default_steps(problem) if n_steps is None else int(n_steps)
+    n_steps = default_steps(problem, cfl=cfl, cfl_viscous=cfl_viscous, t_end=t_end) if n_steps is None \
+        else int(n_steps)
     if n_steps < 1:
         raise InputError(f"invalid n_steps={n_steps}; allowed: a positive integer")
+    if not adaptive:
+        check_fixed_step(problem, n_steps, t_end, cfl=cfl, cfl_viscous=cfl_viscous)
     solver = SSPRK3() if solver is None else solver
     adjoint = diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint
     if saveat is None:
@@ -287,9 +303,11 @@ def make_solve(problem, solver: diffrax.AbstractSolver | None = None, *, n_steps
     def solve_fn(params: Params, particles: Particles) -> diffrax.Solution:
         args = make_args(problem, params, particles, nl0)
         y0 = (particles.x, particles.vol, particles.q)
-        return diffrax.diffeqsolve(term, solver, 0.0, t_end, first, y0, args, saveat=saveat,
-                                   stepsize_controller=controller, adjoint=adjoint, max_steps=max_steps,
-                                   throw=throw)
+        sol = diffrax.diffeqsolve(term, solver, 0.0, t_end, first, y0, args, saveat=saveat,
+                                  stepsize_controller=controller, adjoint=adjoint, max_steps=max_steps,
+                                  throw=throw)
+        return solution_status(problem, sol, params, particles, dt=None if adaptive else t_end / n_steps,
+                               cfl=cfl, cfl_viscous=cfl_viscous)
 
     solve_fn.n_steps = n_steps
     solve_fn.dt = t_end / n_steps
@@ -299,10 +317,83 @@ def make_solve(problem, solver: diffrax.AbstractSolver | None = None, *, n_steps
 
 
 def solve(problem, solver: diffrax.AbstractSolver | None = None, *, params: Params | None = None,
-          particles: Particles | None = None, jit: bool = True, **kw) -> diffrax.Solution:
+          particles: Particles | None = None, jit: bool = True, check_status: bool = True,
+          **kw) -> diffrax.Solution:
     """One-shot :func:`make_solve` (same keywords) on ``problem.params``/``problem.particles``
-    (or the given ones); turn the result into particles with :func:`final_particles`."""
+    (or the given ones); turn the result into particles with :func:`final_particles`.  Raises
+    :class:`~mlsph_jax.errors.SimulationError` if a saved state failed (:func:`check`) unless
+    ``check_status=False``."""
     fn = make_solve(problem, solver, **kw)
     if jit:
         fn = jax.jit(fn)
-    return fn(problem.params if params is None else params, problem.particles if particles is None else particles)
+    sol = fn(problem.params if params is None else params, problem.particles if particles is None else particles)
+    if check_status:
+        check(sol)
+    return sol
+
+
+# ---------------------------------------------------------------------------------------------
+# Status of a solution
+# ---------------------------------------------------------------------------------------------
+
+def solution_status(problem, sol: diffrax.Solution, params: Params | None = None,
+                    particles: Particles | None = None, *, dt=None, cfl: float = 0.3,
+                    cfl_viscous: float = 0.125) -> diffrax.Solution:
+    """``sol`` with ``sol.stats`` extended by the status of its saved states (traceable, no
+    gradient): ``"status"`` (:class:`~mlsph_jax.status.Status` bits of the first failing saved
+    state, 0 if none), ``"bad_particle"`` (its first offending particle, -1) and
+    ``"failed_save"`` (its index in ``sol.ts``/``sol.ys``, -1).  The fluid particles of each
+    saved state (``kind``/``ppd`` of ``particles``, default the problem's) are checked like the
+    driver's steps (:func:`mlsph_jax.status.state_status`); with a fixed step ``dt`` also
+    ``dt`` against the state's CFL limit (``DT_ABOVE_CFL``).  Unused save slots (``ts = inf``)
+    are skipped."""
+    params = problem.params if params is None else params
+    ref = problem.particles if particles is None else particles
+    scheme = problem.scheme
+    zero, none = jnp.asarray(0, jnp.int32), jnp.asarray(-1, jnp.int32)
+    if sol.ys is None:
+        bits, bad, first = zero, none, none
+    else:
+        def one(y):
+            p = jax.lax.stop_gradient(to_particles(problem, y, params, kind=ref.kind, ppd=ref.ppd))
+            b, i = state_status(p, params, scheme)
+            if dt is not None:
+                above = dt > cfl_dt(p, params, scheme, cfl, cfl_viscous)
+                b, i = combine(b, i, jnp.where(above, jnp.int32(Status.DT_ABOVE_CFL), 0),
+                               jnp.where(above, cfl_limiting_particle(p, params, scheme), -1))
+            return b, i
+
+        ys = jax.lax.stop_gradient(sol.ys)
+        bits_k, bad_k = jax.vmap(one)(ys)
+        used = jnp.isfinite(sol.ts) if sol.ts is not None else jnp.ones(bits_k.shape, bool)
+        failing = used & (bits_k != 0)
+        k = jnp.argmax(failing)
+        any_fail = jnp.any(failing)
+        bits = jnp.where(any_fail, bits_k[k], 0).astype(jnp.int32)
+        bad = jnp.where(any_fail, bad_k[k], -1).astype(jnp.int32)
+        first = jnp.where(any_fail, k, -1).astype(jnp.int32)
+    stats = {**sol.stats, "status": bits, "bad_particle": bad, "failed_save": first}
+    return eqx.tree_at(lambda s: s.stats, sol, stats)
+
+
+def check(sol: diffrax.Solution) -> None:
+    """Raise :class:`~mlsph_jax.errors.SimulationError` if the solve did not succeed
+    (``sol.result``) or a saved state failed (``sol.stats["status"]`` of
+    :func:`solution_status`), naming the cause, the saved time and the particle (host side)."""
+    if not bool(sol.result == diffrax.RESULTS.successful):
+        raise SimulationError(f"diffrax solve failed: {diffrax.RESULTS[sol.result]!s}")
+    if "status" not in sol.stats:
+        raise InputError("invalid sol: it has no status; allowed: a solution of make_solve/solve or one passed "
+                         "through solution_status")
+    st = Status(int(sol.stats["status"]))
+    if st == Status.OK:
+        return
+    k, i = int(sol.stats["failed_save"]), int(sol.stats["bad_particle"])
+    t = float(sol.ts[k])
+    where = ""
+    if i >= 0:
+        x = np.asarray(sol.ys[0][k, i])
+        where = f", particle {i} at x={np.array2string(x, precision=6)}"
+    cls = NeighborOverflowError if st.neighbor_overflow_only else SimulationError
+    raise cls(f"diffrax solve stopped being valid: {st.describe()} in the saved state {k} at t={t:.6g}{where}",
+              time=t, particle=i if i >= 0 else None, status=st)

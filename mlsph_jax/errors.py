@@ -19,23 +19,28 @@ class ConfigError(MLSPHError, ValueError):
     """A configuration key is unknown, missing, of the wrong type or out of range."""
 
 
-class NeighborOverflowError(MLSPHError, RuntimeError):
-    """A fixed-capacity neighbour list (or cell) overflowed and could not be regrown."""
-
-
 class SimulationError(MLSPHError, RuntimeError):
-    """A simulation went wrong (NaN, negative density/volume, time-step underflow).
+    """A simulation went wrong (NaN, inadmissible state, negative density/volume, time step
+    underflow or above the CFL limit, unresolved MOOD flags, neighbour overflow).
 
-    Attributes carry where it happened so that callers can report it: ``step``, ``time`` and
-    ``particle`` (index of the first offending particle, or ``None``).
+    Attributes carry where it happened so that callers can report it: ``step``, ``time``,
+    ``particle`` (index of the first offending particle, or ``None``) and ``status`` (the
+    :class:`mlsph_jax.status.Status` bits, or ``None``).
     """
 
     def __init__(self, message: str, *, step: int | None = None, time: float | None = None,
-                 particle: int | None = None):
+                 particle: int | None = None, status=None):
         super().__init__(message)
         self.step = step
         self.time = time
         self.particle = particle
+        self.status = status
+
+
+class NeighborOverflowError(SimulationError):
+    """A fixed-capacity neighbour list (or cell) overflowed and could not be regrown (a
+    :class:`SimulationError`: a differentiated run cannot regrow, the driver gives up after
+    repeated regrowths)."""
 
 
 def invalid(argument: str, value, allowed: str) -> InputError:

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from enum import IntEnum
 
 import jax
 import jax.numpy as jnp
@@ -29,25 +28,10 @@ from .mood import mood_substep
 from .rhs import Geometry, frame_velocity, geometry, rhs
 from .scheme import Scheme
 from .state import Domain, Kind, Params, Particles
+from .status import Status, combine, state_status
 
-
-class Status(IntEnum):
-    OK = 0
-    NONFINITE = 1
-    NEGATIVE_DENSITY = 2
-    NEGATIVE_VOLUME = 3
-    NEIGHBOR_OVERFLOW = 4
-    DT_UNDERFLOW = 5
-
-    def describe(self) -> str:
-        return {
-            Status.OK: "ok",
-            Status.NONFINITE: "non-finite value (NaN/inf) in the state",
-            Status.NEGATIVE_DENSITY: "non-positive density",
-            Status.NEGATIVE_VOLUME: "non-positive particle volume",
-            Status.NEIGHBOR_OVERFLOW: "neighbour-list capacity overflow",
-            Status.DT_UNDERFLOW: "time step underflow",
-        }[self]
+__all__ = ["MOOD_STATS", "Carry", "Status", "StepControl", "cfl_dt", "cfl_limiting_particle", "initial_carry",
+           "make_chunk", "make_stage_geometry", "ssp_rk3_step", "state_status", "static_geometry", "step_status"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -95,6 +79,11 @@ def cfl_dt(particles: Particles, params: Params, scheme: Scheme, cfl: float, cfl
     return dt
 
 
+def cfl_limiting_particle(particles: Particles, params: Params, scheme: Scheme):
+    """Index of the fluid particle with the smallest convective step dx_i / (|u_i - w_i| + c_i)."""
+    return jnp.argmin(_local_dt(jax.lax.stop_gradient(particles), params, scheme)).astype(jnp.int32)
+
+
 def _local_dt(particles: Particles, params: Params, scheme: Scheme):
     eos = get_eos(scheme.eos)
     U = particles.U
@@ -103,22 +92,6 @@ def _local_dt(particles: Particles, params: Params, scheme: Scheme):
     speed = safe_norm(prim.vel - w) + prim.c   # |u - w| = 0 in the Lagrangian frame: keep its gradient finite
     dxi = particles.vol ** (1.0 / particles.dim)
     return jnp.where(particles.kind == Kind.FLUID, dxi / speed, jnp.inf)
-
-
-def health(particles: Particles):
-    """(status, first offending particle) of a candidate state (fluid particles are checked)."""
-    fluid = particles.kind == Kind.FLUID
-    finite = (jnp.all(jnp.isfinite(particles.q), axis=1) & jnp.all(jnp.isfinite(particles.x), axis=1)
-              & jnp.isfinite(particles.vol))
-    nonfinite = fluid & ~finite
-    negvol = fluid & finite & (particles.vol <= 0)
-    negrho = fluid & finite & ~negvol & (particles.q[:, 0] <= 0)
-    status = jnp.where(jnp.any(nonfinite), Status.NONFINITE,
-                       jnp.where(jnp.any(negvol), Status.NEGATIVE_VOLUME,
-                                 jnp.where(jnp.any(negrho), Status.NEGATIVE_DENSITY, Status.OK)))
-    bad = jnp.where(jnp.any(nonfinite), jnp.argmax(nonfinite),
-                    jnp.where(jnp.any(negvol), jnp.argmax(negvol), jnp.argmax(negrho)))
-    return status.astype(jnp.int32), bad.astype(jnp.int32)
 
 
 def _euler(z, dt, dz):
@@ -143,9 +116,24 @@ def make_stage_geometry(scheme: Scheme, domain: Domain, nspec):
     def stage_geometry(p: Particles) -> Geometry:
         h = scheme.beta * p.vol ** (1.0 / p.dim)
         nl = nb.update(p.x, h, nspec)
-        return geometry(p.x, p.vol, nl, scheme, domain)
+        return with_overflow_bits(geometry(p.x, p.vol, nl, scheme, domain), nl)
 
     return stage_geometry
+
+
+def with_overflow_bits(geom: Geometry, nl) -> Geometry:
+    """``geom`` with ``overflow`` holding the list's cause bits (``NeighborList.overflow_bits``,
+    equal to the :class:`Status` neighbour bits) instead of a bool."""
+    return dataclasses.replace(geom, overflow=jnp.asarray(nl.overflow_bits, jnp.int32))
+
+
+def overflow_bits(geom: Geometry) -> jax.Array:
+    """The :class:`Status` neighbour bits of a geometry (a bool ``overflow`` means: cause unknown,
+    all three bits)."""
+    ovf = jnp.asarray(geom.overflow)
+    if ovf.dtype == jnp.bool_:
+        return jnp.where(ovf, jnp.int32(Status.NEIGHBOR_OVERFLOW), 0).astype(jnp.int32)
+    return ovf.astype(jnp.int32)
 
 
 SSP_RK3_A = (0.0, 0.75, 1.0 / 3.0)  # Shu-Osher form: z_{k+1} = a_k y + b_k (z_k + dt L(z_k))
@@ -157,8 +145,9 @@ def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, boun
     runs).  Each stage is a forward-Euler sub-step E = z + dt L(z) combined as a y^n + b E; with
     ``scheme.limiter == "mood"`` the sub-step is MOOD-limited (:mod:`mlsph_jax.mood`).
 
-    Returns ``(new state, overflow, stats)``: whether any stage's neighbour list overflowed and
-    ``stats = (ppd, rhs evaluations, unresolved stages)`` where ``ppd`` is the smallest
+    Returns ``(new state, overflow, stats)``: ``overflow`` the :class:`Status` neighbour bits
+    of the stages' lists (int32, 0 if none overflowed) and ``stats = (ppd, rhs evaluations,
+    unresolved stages, first unresolved particle or -1)`` where ``ppd`` is the smallest
     per-particle degree used in the three stages (the state's ``ppd`` field carries it out).
 
     The three stages run as a ``lax.scan`` over the Shu-Osher coefficients, so the right-hand
@@ -169,7 +158,7 @@ def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, boun
     mood_on = scheme.limiter == "mood"
 
     def stage(carry, ab):
-        z, overflow, ppd_min, n_evals, unresolved = carry
+        z, overflow, ppd_min, n_evals, unresolved, unres_particle = carry
         a, b = ab
         if boundary is not None:
             z = boundary.apply(z, params)
@@ -181,28 +170,97 @@ def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, boun
         if mood_on:
             e, ppd, n, unres = mood_substep(z, params, dt, geom, scheme, euler)
             ppd_min = jnp.minimum(ppd_min, ppd)
+            unres, first = _unresolved_particle(unres, z, e, ppd, geom, params, scheme)
+            unres_particle = jnp.where(unres_particle >= 0, unres_particle, first)
             n_evals, unresolved = n_evals + n, unresolved + unres.astype(jnp.int32)
         else:
             e = euler(z)
             n_evals = n_evals + 1
         cand = _combine(a, p, b, e)
-        return (cand, overflow | geom.overflow, ppd_min, n_evals, unresolved), None
+        return (cand, overflow | overflow_bits(geom), ppd_min, n_evals, unresolved, unres_particle), None
 
     coeffs = (jnp.asarray(SSP_RK3_A), jnp.asarray(SSP_RK3_B))
     ppd_start = jnp.full_like(p.ppd, scheme.reconstruction_degree) if mood_on else p.ppd
-    init = (p, jnp.asarray(False), ppd_start, jnp.asarray(0, jnp.int32), jnp.asarray(0, jnp.int32))
-    (out, overflow, ppd_min, n_evals, unresolved), _ = jax.lax.scan(stage, init, coeffs)
+    zero = jnp.asarray(0, jnp.int32)
+    init = (p, zero, ppd_start, zero, zero, jnp.asarray(-1, jnp.int32))
+    (out, overflow, ppd_min, n_evals, unresolved, unres_particle), _ = jax.lax.scan(stage, init, coeffs)
     if boundary is not None:
         out = boundary.apply(out, params)
-    return out.replace(ppd=ppd_min), overflow, (ppd_min, n_evals, unresolved)
+    return out.replace(ppd=ppd_min), overflow, (ppd_min, n_evals, unresolved, unres_particle)
+
+
+def _unresolved_particle(unres, z, e, ppd, geom, params, scheme):
+    """(any unresolved, first particle still flagged or -1) of a MOOD sub-step.  ``unres`` is the
+    limiter's flag output: per particle ``[N]`` or a scalar; for a scalar the flags of the
+    returned candidate are recomputed, only when they are unresolved (``lax.cond``: free
+    otherwise)."""
+    unres = jax.lax.stop_gradient(unres)
+    if jnp.ndim(unres) == 1:
+        return jnp.any(unres), jnp.where(jnp.any(unres), jnp.argmax(unres), -1).astype(jnp.int32)
+
+    def first_flagged(_):
+        from .mood import detect, nad_fields, stencil_bounds
+
+        zz, ee = jax.lax.stop_gradient((z, e))
+        U_z = zz.q / zz.vol[:, None]
+        bounds = stencil_bounds(nad_fields(U_z, scheme, params), geom.idx, geom.mask) if scheme.mood_nad else None
+        f = detect(ee.q / ee.vol[:, None], bounds, scheme, params) & (zz.kind == Kind.FLUID) & (ppd > 0)
+        return jnp.where(jnp.any(f), jnp.argmax(f), -1).astype(jnp.int32)
+
+    return unres, jax.lax.cond(unres, first_flagged, lambda _: jnp.asarray(-1, jnp.int32), None)
 
 
 def _mood_stats(stats, p: Particles, scheme: Scheme):
     """This step's contribution to ``Carry.mood`` (see :data:`MOOD_STATS`)."""
-    ppd, n_evals, unresolved = stats
+    ppd, n_evals, unresolved = stats[:3]
     fluid = p.kind == Kind.FLUID
     demoted = jnp.sum(fluid & (ppd < scheme.reconstruction_degree)) / jnp.maximum(jnp.sum(fluid), 1)
     return jnp.stack([demoted, demoted, n_evals.astype(demoted.dtype), unresolved.astype(demoted.dtype)])
+
+
+def step_status(p: Particles, newp: Particles, params: Params, scheme: Scheme, dt, overflow, stats, *,
+                dt_fixed: bool = False, cfl: float = 0.3, cfl_viscous: float = 0.125, dt_min: float = 0.0,
+                last=False):
+    """``(status bits, first offending particle)`` of one step from ``p`` to the candidate ``newp``
+    (traceable, no host synchronisation, no gradient):
+
+    * :func:`~mlsph_jax.status.state_status` of the candidate (NONFINITE, NEGATIVE_VOLUME,
+      NEGATIVE_DENSITY, INADMISSIBLE), with its particle;
+    * the stages' neighbour bits ``overflow`` (from :func:`ssp_rk3_step`);
+    * MOOD_UNRESOLVED when a stage left MOOD flags unresolved (``stats`` of :func:`ssp_rk3_step`);
+    * with ``dt_fixed``: DT_ABOVE_CFL when ``dt`` exceeds :data:`FIXED_DT_SLACK` times
+      :func:`cfl_dt` of ``p`` (the state the step starts from) with the same ``cfl``/``cfl_viscous``.
+      A fixed step is refused before the run unless it is within the CFL limit of the initial
+      state (:func:`mlsph_jax.run.check_fixed_step`); during the run the flow may speed up (Sod's
+      post-shock state is faster than either initial state), so the in-run test allows an
+      effective Courant number of twice ``cfl`` (0.6 by default, still inside SSP-RK3's linear
+      stability range) before it stops the run;
+    * DT_UNDERFLOW when ``dt < dt_min`` and the step is not the ``last`` one before an output time.
+
+    For the dt causes the particle is the one limiting the CFL step.
+    """
+    bits, bad = state_status(newp, params, scheme)
+    bits = bits | overflow
+    unresolved, unres_particle = stats[2], stats[3]
+    mood = unresolved > 0
+    bits, bad = combine(bits, bad, jnp.where(mood, jnp.int32(Status.MOOD_UNRESOLVED), 0),
+                        jnp.where(mood, unres_particle, -1))
+    dt_bits = jnp.zeros((), jnp.int32)
+    if dt_fixed:
+        limit = cfl_dt(jax.lax.stop_gradient(p), params, scheme, cfl, cfl_viscous)
+        above = jax.lax.stop_gradient(dt) > FIXED_DT_SLACK * limit
+        dt_bits = dt_bits | jnp.where(above, jnp.int32(Status.DT_ABOVE_CFL), 0)
+    if dt_min > 0:
+        dt_bits = dt_bits | jnp.where((dt < dt_min) & ~last, jnp.int32(Status.DT_UNDERFLOW), 0)
+    if dt_fixed or dt_min > 0:
+        limiting = cfl_limiting_particle(p, params, scheme)
+        bits, bad = combine(bits, bad, dt_bits, jnp.where(dt_bits != 0, limiting, -1))
+    return bits.astype(jnp.int32), bad.astype(jnp.int32)
+
+
+#: How far a fixed step may exceed the CFL step of the current state during a run (see
+#: :func:`step_status`) before the run stops with ``Status.DT_ABOVE_CFL``.
+FIXED_DT_SLACK = 2.0
 
 
 def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: int, nspec=None, boundary=None):
@@ -225,12 +283,9 @@ def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: in
                 last = dt >= remaining
                 dt = jnp.minimum(dt, remaining)
                 newp, overflow, stats = ssp_rk3_step(c.particles, params, dt, scheme, geom_fn, boundary)
-                st, bad = health(newp)
-                st = jnp.where(overflow, Status.NEIGHBOR_OVERFLOW, st)
-                underflow = (dt < control.dt_min) & ~last
-                st = jnp.where(underflow, Status.DT_UNDERFLOW, st).astype(jnp.int32)
-                # for an underflow, report the particle that limits the CFL step
-                bad = jnp.where(underflow, jnp.argmin(_local_dt(c.particles, params, scheme)), bad).astype(jnp.int32)
+                st, bad = step_status(c.particles, newp, params, scheme, dt, overflow, stats,
+                                      dt_fixed=control.dt_fixed > 0, cfl=control.cfl,
+                                      cfl_viscous=control.cfl_viscous, dt_min=control.dt_min, last=last)
                 ok = st == Status.OK
                 keep = lambda new, old: jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, old)
                 t_new = jnp.where(last, t_stop, c.t + dt)
@@ -256,5 +311,6 @@ def initial_carry(particles: Particles, t0: float = 0.0) -> Carry:
 
 @functools.partial(jax.jit, static_argnames=("scheme", "domain"))
 def static_geometry(particles: Particles, nl, scheme: Scheme, domain: Domain) -> Geometry:
-    """Geometry of fixed (Eulerian) particles, computed once."""
-    return geometry(particles.x, particles.vol, nl, scheme, domain)
+    """Geometry of fixed (Eulerian) particles, computed once (``overflow`` = the list's
+    :class:`Status` neighbour bits)."""
+    return with_overflow_bits(geometry(particles.x, particles.vol, nl, scheme, domain), nl)

@@ -52,7 +52,9 @@ Shapes must be static under ``jit``, so sizing happens on the host in :func:`all
 jit-able with the spec static (``jax.jit(update, static_argnames="spec")``), performs no host
 synchronisation and never fails silently: ``NeighborList.overflow`` is set when a row needs more
 than K slots, a cell holds more than ``cell_capacity`` particles, or some ``support * h_i``
-exceeds ``cell_size``.  :func:`update_or_grow` is the host helper that regrows and retries.
+exceeds ``cell_size``; ``NeighborList.overflow_bits`` says which (:data:`OVERFLOW_ROW`,
+:data:`OVERFLOW_CELL`, :data:`OVERFLOW_REACH`), so a caller can grow the right limit.
+:func:`update_or_grow` is the host helper that regrows and retries.
 """
 
 from __future__ import annotations
@@ -70,11 +72,15 @@ from .errors import InputError, NeighborOverflowError
 from .state import Domain, minimum_image
 
 __all__ = [
+    "OVERFLOW_CELL",
+    "OVERFLOW_REACH",
+    "OVERFLOW_ROW",
     "NeighborList",
     "NeighborSpec",
     "allocate",
     "brute_force",
     "grow",
+    "overflow_causes",
     "plan",
     "update",
     "update_jit",
@@ -169,14 +175,38 @@ class NeighborList:
             entries, 0 on padding.
         count: ``[N]`` int32 true number of neighbours (self included); may exceed K (then
             ``overflow`` is set).  A lower bound if a cell overflowed.
-        overflow: scalar bool array; the list is incomplete and must be regrown.
+        overflow_bits: scalar int32 array, the causes of an overflow as bits
+            (:data:`OVERFLOW_ROW` | :data:`OVERFLOW_CELL` | :data:`OVERFLOW_REACH`), 0 if the list
+            is complete.
+
+    ``overflow`` (scalar bool array, ``overflow_bits != 0``): the list is incomplete and must be
+    regrown; the bits say which limit to grow.
     """
 
     idx: jax.Array
     mask: jax.Array
     rev: jax.Array
     count: jax.Array
-    overflow: jax.Array
+    overflow_bits: jax.Array
+
+    @property
+    def overflow(self) -> jax.Array:
+        return self.overflow_bits != 0
+
+
+#: ``NeighborList.overflow_bits``: a particle has more neighbours than ``capacity`` (K).
+OVERFLOW_ROW = 1
+#: ``NeighborList.overflow_bits``: a cell holds more particles than ``cell_capacity``.
+OVERFLOW_CELL = 2
+#: ``NeighborList.overflow_bits``: some support radius ``support * h_i`` exceeds ``cell_size``.
+OVERFLOW_REACH = 4
+
+
+def overflow_causes(bits: int) -> list[str]:
+    """Names of the spec limits an ``overflow_bits`` value exceeded (host side)."""
+    bits = int(bits)
+    return [name for bit, name in ((OVERFLOW_ROW, "capacity"), (OVERFLOW_CELL, "cell_capacity"),
+                                   (OVERFLOW_REACH, "cell_size")) if bits & bit]
 
 
 # --------------------------------------------------------------------------------------------
@@ -395,10 +425,11 @@ def _update_kernel(x, h, g, *, capacity: int, cell_capacity: int,
                    batch_size: int | None) -> NeighborList:
     n = x.shape[0]
     idx, count, occ = _rows(x, h, g, cell_capacity, capacity, batch_size)
-    overflow = ((jnp.max(count) > capacity) | (jnp.max(occ) > cell_capacity)
-                | jnp.any(g["support"] * h > g["cell_size"]))
+    bits = (jnp.where(jnp.max(count) > capacity, OVERFLOW_ROW, 0)
+            | jnp.where(jnp.max(occ) > cell_capacity, OVERFLOW_CELL, 0)
+            | jnp.where(jnp.any(g["support"] * h > g["cell_size"]), OVERFLOW_REACH, 0)).astype(jnp.int32)
     rev = _reverse_slots(idx, n, _rev_batch(n, capacity, batch_size))
-    return NeighborList(idx=idx, mask=idx < n, rev=rev, count=count, overflow=overflow)
+    return NeighborList(idx=idx, mask=idx < n, rev=rev, count=count, overflow_bits=bits)
 
 
 def update(x: jax.Array, h: jax.Array, spec: NeighborSpec) -> NeighborList:

@@ -17,6 +17,13 @@ named after diagnostics) with optax on relative coordinates theta = theta_0 (1 +
 learning rate suits parameters of any magnitude.  Loss: the mean over columns of the mean squared
 misfit at the observed times (the simulated series linearly interpolated), each column divided by
 the mean square of its observations.
+
+Every forward run is checked: the :class:`~mlsph_jax.differentiable.SimOutput` (with its status
+word) is returned as auxiliary output of the differentiated function and checked on the host
+(:func:`mlsph_jax.differentiable.check`), so a run that fails (NaN, inadmissible state, a step
+above the CFL limit, neighbour overflow, ...) raises :class:`~mlsph_jax.errors.SimulationError`
+naming step, time, particle and cause instead of returning NaN or a frozen state's numbers.  A
+``n_steps`` above the CFL limit of the initial state is refused before running (InputError).
 """
 
 from __future__ import annotations
@@ -30,7 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .differentiable import check_overflow, make_simulate, param_paths, with_param
+from .differentiable import check, make_simulate, param_paths, with_param
 from .errors import InputError
 from .state import Params
 
@@ -92,10 +99,19 @@ def sensitivity(problem, wrt: Sequence[str], of: str, check_fd: bool = False, fd
         return f(p)
 
     (value, out), grads = jax.jit(jax.value_and_grad(g, has_aux=True))(theta)
-    check_overflow(out)
+    check(out, simulate, problem.params)
     result = {"objective": of, "value": float(value), "n_steps": simulate.n_steps, "dt": simulate.dt,
               "gradients": {}}
-    fj = jax.jit(lambda th: g(th)[0]) if check_fd else None
+    g_jit = jax.jit(g) if check_fd else None
+
+    def fj(th):   # a finite-difference run, checked like the others
+        val, o = g_jit(th)
+        p = problem.params
+        for k, v in th.items():
+            p = with_param(p, k, v)
+        check(o, simulate, p)
+        return val
+
     for k in wrt:
         gk = np.asarray(grads[k])
         entry = {"value": np.asarray(theta[k]).tolist(), "gradient": gk.tolist()}
@@ -168,14 +184,19 @@ def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], ste
     theta0 = {k: jnp.asarray(problem.params[k], jnp.float64) for k in fit}
 
     def loss(s):
-        p = problem.params
-        for k in fit:
-            p = with_param(p, k, theta0[k] * (1.0 + s[k]))
-        out = simulate(p, problem.particles)
+        out = simulate(_params_at(problem.params, fit, theta0, s), problem.particles)
         terms = [jnp.mean((jnp.interp(t_obs, out.times, out.series[c]) - obs[c]) ** 2) / scale[c] for c in cols]
         return sum(terms) / len(terms), out
 
     vg = jax.jit(jax.value_and_grad(loss, has_aux=True))
+
+    def trial_loss(z):
+        """The line search's trial runs: a failed run is an infinite loss (the step shrinks)
+        rather than the loss of its frozen last good state; accepted points are re-run by
+        ``vg`` and checked on the host."""
+        val, out = loss(z)
+        return jnp.where(out.status == 0, val, jnp.inf)
+
     s = {k: jnp.zeros_like(v) for k, v in theta0.items()}
     if optimizer == "adam":
         opt = optax.adam(optax.cosine_decay_schedule(0.05 if lr is None else lr, max(steps, 1)))
@@ -189,7 +210,7 @@ def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], ste
 
         @jax.jit
         def advance(s, state, val, g):
-            upd, state = opt.update(g, state, s, value=val, grad=g, value_fn=lambda z: loss(z)[0])
+            upd, state = opt.update(g, state, s, value=val, grad=g, value_fn=trial_loss)
             return optax.apply_updates(s, upd), state
     state = opt.init(s)
     history = []
@@ -201,7 +222,7 @@ def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], ste
     out = None
     for it in range(steps + 1):
         (val, out), g = vg(s)
-        check_overflow(out)
+        check(out, simulate, _params_at(problem.params, fit, theta0, s))
         current = {k: (theta0[k] * (1.0 + s[k])).tolist() for k in fit}
         history.append({"iteration": it, "loss": float(val), "params": current})
         if callback is not None:
@@ -220,18 +241,22 @@ def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], ste
             "target": {k: np.asarray(v).tolist() for k, v in target.items()}}
 
 
+def _params_at(params: Params, fit: Sequence[str], theta0, s) -> Params:
+    """The parameters at relative coordinates ``s`` (theta = theta_0 (1 + s))."""
+    for k in fit:
+        params = with_param(params, k, theta0[k] * (1.0 + s[k]))
+    return params
+
+
 def write_calibration(out_dir: str | Path, result: Mapping) -> None:
     """history.json and calibration.png (loss per iteration, fitted vs observed series)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from .plotting import subplots
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "history.json").write_text(json.dumps(result, indent=2))
     cols = list(result["series"])
-    fig, axes = plt.subplots(1, 1 + len(cols), figsize=(4.5 * (1 + len(cols)), 3.4))
+    fig, axes = subplots(1, 1 + len(cols), figsize=(4.5 * (1 + len(cols)), 3.4))
     axes = np.atleast_1d(axes)
     axes[0].semilogy([h["loss"] for h in result["history"]], "k.-")
     axes[0].set_xlabel("iteration")
@@ -244,4 +269,3 @@ def write_calibration(out_dir: str | Path, result: Mapping) -> None:
         ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(out / "calibration.png", dpi=110)
-    plt.close(fig)

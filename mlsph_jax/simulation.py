@@ -2,17 +2,20 @@
 
 The time loop is a sequence of jitted ``lax.scan`` chunks (:mod:`mlsph_jax.integrate`); between
 chunks the host reads the carry's status (one synchronisation per chunk), writes snapshots at
-the output times, updates the progress bar and handles neighbour-capacity overflow by growing
-the capacity and resuming from the last good state (the failing step was never committed).
-Any other failure (NaN, non-positive density or volume, time-step underflow) raises
-:class:`~mlsph_jax.errors.SimulationError` naming the step, time and particle, after the last
-good state has been written as a snapshot and ``summary.json`` records the failure.
+the output times, updates the progress bar and handles neighbour-list overflow by growing
+the limit its cause names (row capacity, cell capacity or cell size: the bits of the status
+word, :class:`~mlsph_jax.status.Status`) and resuming from the last good state (the failing
+step was never committed).  Any other failure (NaN, inadmissible state, non-positive density or
+volume, time step underflow or a fixed step above the CFL limit, MOOD flags left unresolved)
+raises :class:`~mlsph_jax.errors.SimulationError` naming the step, time, particle and cause,
+after the last good state has been written as a snapshot and ``summary.json`` records the
+failure.  Neighbour sizing, geometry reuse and chunk compilation come from the run layer
+(:mod:`mlsph_jax.run`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -21,12 +24,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import io
-from . import neighbors as nb
 from .eos import get_eos, to_primitive
 from .errors import NeighborOverflowError, SimulationError
-from .integrate import MOOD_STATS, Carry, Status, StepControl, initial_carry, make_chunk, static_geometry
+from .integrate import MOOD_STATS, Carry, StepControl, initial_carry
+from .run import RunSetup, setup_run
 from .scheme import Scheme
 from .state import Domain, Kind, Params, Particles
+from .status import Status
+from .status import failure as status_failure
 
 
 @dataclasses.dataclass
@@ -98,28 +103,26 @@ class Simulation:
         self.max_steps = int(max_steps)
         self.headroom = headroom
         self._regrowths = 0
-        p = problem.particles
-        h = problem.scheme.beta * np.asarray(p.vol) ** (1.0 / p.dim)
-        cell = None
-        if problem.scheme.moving:  # room for particles to move without regrowing (recompiling)
-            cell = problem.scheme.support * float(h.max()) * (2.5 if p.dim == 1 else 1.5)
-            headroom = max(headroom, 2.0 if p.dim == 1 else 1.6)
-        self.nspec, self.nl = nb.allocate(np.asarray(p.x), h, problem.domain, support=problem.scheme.support,
-                                          headroom=headroom, cell_size=cell)
+        #: one entry per neighbour regrowth: the cause and the limits before and after
+        self.regrowth_log: list[dict] = []
+        self.setup: RunSetup = setup_run(problem, headroom=headroom, min_moving_headroom=True)
         self._build()
 
+    @property
+    def nspec(self):
+        return self.setup.nspec
+
+    @property
+    def nl(self):
+        return self.setup.nl
+
     def _build(self):
-        pb = self.problem
-        self._chunk = make_chunk(pb.scheme, pb.domain, self.control, self.chunk_steps,
-                                 nspec=self.nspec if pb.scheme.moving else None, boundary=pb.boundary)
+        self._chunk = self.setup.make_chunk(self.control, self.chunk_steps)
         self._compiled = None
 
     def _geom(self, p: Particles):
-        if self.problem.scheme.moving:
-            return None
-        h = self.problem.scheme.beta * p.vol ** (1.0 / p.dim)
-        self.nspec, self.nl = nb.update_or_grow(p.x, h, self.nspec)
-        return static_geometry(p, self.nl, self.problem.scheme, self.problem.domain)
+        self.setup, geom = self.setup.host_geometry(p)
+        return geom
 
     def run(self, out_dir: str | Path | None = None, snapshots: int = 10, progress: bool = True,
             plots: bool = True) -> Result:
@@ -156,9 +159,14 @@ class Simulation:
                     st = Status(int(carry.status))  # one host sync per chunk
                     t = float(carry.t)
                     bar.update(t, int(carry.step))
-                    if st == Status.NEIGHBOR_OVERFLOW:
-                        self._regrow(carry.particles)
-                        carry = dataclasses.replace(carry, status=jnp.asarray(0, jnp.int32))
+                    if st & Status.NEIGHBOR_OVERFLOW:  # (other bits may be its consequences)
+                        try:
+                            self._regrow(carry, st)
+                        except NeighborOverflowError as e:
+                            failure = e
+                            break
+                        carry = dataclasses.replace(carry, status=jnp.asarray(0, jnp.int32),
+                                                    bad_particle=jnp.asarray(-1, jnp.int32))
                         geom = self._geom(carry.particles)
                         continue
                     if st != Status.OK:
@@ -221,48 +229,33 @@ class Simulation:
             raise failure
         return Result(final, summary, out)
 
-    def _regrow(self, p: Particles):
-        """Grow the neighbour capacity after an overflow (the failing step was not committed).
-
-        The last good state may still fit the old capacity, so every regrowth enlarges the row
-        capacity, the cell capacity and (for moving particles) the cell size by at least 30 %;
-        after ``MAX_REGROWTHS`` attempts the run stops with NeighborOverflowError.
-        """
+    def _regrow(self, carry: Carry, status: Status):
+        """Grow the neighbour limits named by the overflow bits of ``status`` (the failing step
+        was not committed; :meth:`mlsph_jax.run.RunSetup.regrow`) and recompile.  After
+        ``MAX_REGROWTHS`` regrowths the run stops with NeighborOverflowError (naming every cause
+        of the last failing step)."""
         self._regrowths += 1
-        if self._regrowths > MAX_REGROWTHS:
-            raise NeighborOverflowError(
-                f"neighbour list overflowed {MAX_REGROWTHS} times in one run (capacity={self.nspec.capacity}, "
-                f"cell_capacity={self.nspec.cell_capacity}); raise scheme.neighbor_headroom")
         old = self.nspec
-        xa = np.asarray(p.x)
-        h = self.problem.scheme.beta * np.asarray(p.vol) ** (1.0 / p.dim)
-        counts, occ = nb.measure(xa, h, old)
-        # how close the last good state is to each limit; grow those within 20 % of it
-        use = {"capacity": counts.max() / old.capacity, "cell_capacity": occ / old.cell_capacity,
-               "cell_size": old.support * h.max() / old.cell_size}
-        grow_all = max(use.values()) < 0.8
-        changes = {}
-        for key, ratio in use.items():
-            if grow_all or ratio >= 0.8:
-                cur = getattr(old, key)
-                changes[key] = cur * 1.3 if key == "cell_size" else math.ceil(cur * 1.3)
-        new = nb.grow(dataclasses.replace(old, cell_size=changes.get("cell_size", old.cell_size)), xa, h,
-                      headroom=self.headroom)
-        self.nspec = dataclasses.replace(
-            new, capacity=max(new.capacity, changes.get("capacity", 0)),
-            cell_capacity=max(new.cell_capacity, changes.get("cell_capacity", 0)))
+        if self._regrowths > MAX_REGROWTHS:
+            err = self._failure(status, carry)
+            raise NeighborOverflowError(
+                f"{err}; the neighbour list overflowed {MAX_REGROWTHS} times in one run (capacity={old.capacity}, "
+                f"cell_capacity={old.cell_capacity}, cell_size={old.cell_size:.6g}); raise "
+                "scheme.neighbor_headroom", step=err.step, time=err.time, particle=err.particle, status=status)
+        self.setup = self.setup.regrow(carry.particles, status)
+        new = self.nspec
+        self.regrowth_log.append({
+            "step": int(carry.step) + 1, "t": float(carry.t),
+            "causes": [c.name for c in (status & Status.NEIGHBOR_OVERFLOW).causes],
+            **{k: (getattr(old, k), getattr(new, k)) for k in ("capacity", "cell_capacity", "cell_size")}})
         self._build()
 
     def _failure(self, st: Status, carry: Carry) -> SimulationError:
         i = int(carry.bad_particle)
-        where = ""
-        if i >= 0:
-            x = np.asarray(carry.particles.x[i])
-            where = f", particle {i} at x={np.array2string(x, precision=6)}"
-        return SimulationError(
-            f"simulation stopped: {st.describe()} in step {int(carry.step) + 1} starting at "
-            f"t={float(carry.t):.6g}{where}; the last good state (t={float(carry.t):.6g}) is the "
-            "final snapshot", step=int(carry.step) + 1, time=float(carry.t), particle=i if i >= 0 else None)
+        x = np.asarray(carry.particles.x[i]) if i >= 0 else None
+        t = float(carry.t)
+        return status_failure(st, step=int(carry.step) + 1, time=t, particle=i, x=x,
+                       last_good=f"the last good state (t={t:.6g}) is the final snapshot")
 
 
 def _velocity(p: Particles) -> np.ndarray:
