@@ -16,20 +16,16 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
 import time
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 import diffrax  # noqa: E402
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
-from test_differentiable import couette_problem, periodic_shear_problem  # noqa: E402
-from test_diffrax_path import rel_diff  # noqa: E402
 
 from mlsph_jax import diffrax_path as dp  # noqa: E402
 from mlsph_jax.differentiable import kinetic_energy, make_simulate, with_param  # noqa: E402
+from mlsph_jax.testing import couette_problem, periodic_shear_problem  # noqa: E402
+from mlsph_jax.testing import state_difference as rel_diff  # noqa: E402
 
 
 def timed(fn, *a):

@@ -122,3 +122,102 @@ def jittered_lattice(n: int | Sequence[int], amplitude: float = 0.2, seed: int =
 def random_cloud(n: int, dim: int, seed: int = 0) -> np.ndarray:
     """``n`` uniform random points in the unit box of dimension ``dim``."""
     return np.random.default_rng(seed).uniform(size=(n, dim))
+
+
+# --------------------------------------------------------------------------------------------
+# small problems
+# --------------------------------------------------------------------------------------------
+
+#: Weakly compressible Tait water of the viscous test problems (rho0 = 1, c0 = 10: Mach 0.1 at |u| = 1).
+TAIT = {"eos.rho0": 1.0, "eos.c0": 10.0, "eos.gamma": 7.0, "eos.p0": 0.0, "physics.kappa": 0.0}
+
+
+def square_lattice(nx: int, ny: int, dx: float, jitter: float = 0.0, seed: int = 0) -> np.ndarray:
+    """``nx`` x ``ny`` square lattice of spacing ``dx`` (cell centred), optionally moved by up to
+    ``jitter`` spacings per coordinate (reproducible with ``seed``), shape ``[nx ny, 2]``."""
+    X, Y = np.meshgrid((np.arange(nx) + 0.5) * dx, (np.arange(ny) + 0.5) * dx, indexing="ij")
+    x = np.stack([X.ravel(), Y.ravel()], 1)
+    if jitter:
+        x = x + np.random.default_rng(seed).uniform(-jitter, jitter, x.shape) * dx
+    return x
+
+
+def tait_particles(x, vel, dx: float, params, degree: int = 2, rho=None):
+    """Fluid particles of volume dx^2 at ``x`` with velocities ``vel`` and density ``rho`` (default 1)."""
+    import jax.numpy as jnp
+
+    from .eos import get_eos, to_conservative
+    from .state import make_particles
+
+    n = len(x)
+    rho = jnp.ones(n) if rho is None else jnp.asarray(rho)
+    U = to_conservative(rho, jnp.asarray(vel), jnp.zeros(n), get_eos("tait"), params)
+    return make_particles(x, np.full(n, dx * dx), U, ppd=np.full(n, degree))
+
+
+def channel(ny: int, mu: float, walls_velocity, vel_fn, nx: int | None = None, frame: str = "eulerian",
+            slip: bool = False, H: float = 1.0, degree: int = 2, body=None):
+    """A plane channel between mirror-ghost walls at y = 0 and y = H, periodic in x: ``ny``
+    particles across, ``nx`` (default 2 ny) along; Tait water with viscosity ``mu``; initial
+    velocity ``vel_fn(x)``; wall velocities ``walls_velocity[2, 2]`` (bottom, top).
+    Returns ``(particles, params, scheme, domain, walls)``."""
+    import jax.numpy as jnp
+
+    from .boundaries import BOUNDARIES, Wall
+    from .scheme import Scheme
+    from .state import Domain, Params
+
+    dx = H / ny
+    nx = nx or 2 * ny
+    x = square_lattice(nx, ny, dx)
+    vals = {**TAIT, "physics.mu": mu, "boundary.wall_velocity": jnp.asarray(walls_velocity)}
+    if body is not None:
+        vals["physics.body_force"] = jnp.asarray(body)
+    params = Params(vals)
+    pf = tait_particles(x, vel_fn(x), dx, params, degree)
+    p, walls = BOUNDARIES.get("mirror_ghosts").setup(pf, [Wall(1, 0.0, 1, slip), Wall(1, H, -1, slip)], 3.2 * dx,
+                                                     params, "tait")
+    domain = Domain((0.0, -4 * dx), (nx * dx, H + 4 * dx), (True, False))
+    scheme = Scheme(eos="tait", viscous=mu > 0, frame=frame, reconstruction_degree=degree, degree=2, beta=1.5)
+    return p, params, scheme, domain, walls
+
+
+def couette_problem(ny: int = 8, nx: int = 4, t_end: float = 0.05):
+    """Start-up Couette flow between mirror walls (viscous, Tait) as a small :class:`Problem`."""
+    from .simulation import Problem
+
+    p, params, scheme, domain, walls = channel(ny, 0.1, [[0.0, 0.0], [1.0, 0.0]],
+                                               lambda x: np.zeros((len(x), 2)), nx=nx)
+    return Problem("couette", p, params, scheme, domain, t_end, boundary=walls)
+
+
+def periodic_shear_problem(n: int = 8, t_end: float = 0.02):
+    """Viscous Tait flow in a periodic box on a jittered layout with a generic smooth velocity
+    (no pair has u.n = 0 exactly, so the Rusanov wave speed |u.n| is differentiable)."""
+    from .scheme import Scheme
+    from .simulation import Problem
+    from .state import Domain, Params
+
+    dx = 1.0 / n
+    x = square_lattice(n, n, dx, jitter=0.1) % 1.0
+    vel = np.stack([0.3 + np.sin(2 * np.pi * x[:, 1]), 0.2 + 0.5 * np.cos(2 * np.pi * x[:, 0])], 1)
+    params = Params({**TAIT, "physics.mu": 0.02})
+    p = tait_particles(x, vel, dx, params)
+    scheme = Scheme(eos="tait", viscous=True, reconstruction_degree=2, degree=2, beta=1.5)
+    return Problem("shear", p, params, scheme, Domain((0.0, 0.0), (1.0, 1.0), (True, True)), t_end)
+
+
+def state_difference(p, ref, fluid_only: bool = True) -> float:
+    """Largest relative difference over the fields: x, vol, mass, momentum (all components
+    together, scaled by the largest momentum component) and energy, each as max|p - ref| / max|ref|
+    over the fluid particles (all particles, ghosts included, with ``fluid_only=False``)."""
+    from .state import Kind
+
+    sel = (np.asarray(ref.kind) == Kind.FLUID) if fluid_only else np.ones(ref.n, bool)
+    d = ref.dim
+
+    def fields(z):
+        x, vol, q = (np.asarray(a)[sel] for a in (z.x, z.vol, z.q))
+        return [x, vol, q[:, :1], q[:, 1:1 + d]] + ([q[:, 1 + d:]] if q.shape[1] > 1 + d else [])
+
+    return max(float(np.abs(a - b).max() / np.abs(b).max()) for a, b in zip(fields(p), fields(ref), strict=True))

@@ -9,7 +9,6 @@ adjoint equals the built-in differentiable path's.
 from __future__ import annotations
 
 import dataclasses
-import sys
 
 import diffrax
 import jax
@@ -17,29 +16,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-sys.path.insert(0, __file__.rsplit("/", 1)[0])
-from test_differentiable import couette_problem, periodic_shear_problem  # noqa: E402
-
 from mlsph_jax import diffrax_path as dp  # noqa: E402
 from mlsph_jax.differentiable import kinetic_energy, make_simulate, with_param  # noqa: E402
 from mlsph_jax.errors import InputError  # noqa: E402
-from mlsph_jax.state import Kind  # noqa: E402
+from mlsph_jax.testing import couette_problem, periodic_shear_problem, state_difference  # noqa: E402
 
 N_STEPS = 20  # dt = t_end / 20 = 1e-3 (the CFL step of the case is ~3.3e-3)
 
 
-def rel_diff(p, ref, fluid_only: bool = True) -> float:
-    """Largest relative difference over the fields: x, vol, mass, momentum (all components
-    together, scaled by the largest momentum component) and energy, each as max|p - ref| / max|ref|
-    over the fluid particles (all particles, ghosts included, with ``fluid_only=False``)."""
-    sel = (np.asarray(ref.kind) == Kind.FLUID) if fluid_only else np.ones(ref.n, bool)
-    d = ref.dim
-
-    def fields(z):
-        x, vol, q = (np.asarray(a)[sel] for a in (z.x, z.vol, z.q))
-        return [x, vol, q[:, :1], q[:, 1:1 + d]] + ([q[:, 1 + d:]] if q.shape[1] > 1 + d else [])
-
-    return max(float(np.abs(a - b).max() / np.abs(b).max()) for a, b in zip(fields(p), fields(ref), strict=True))
+rel_diff = state_difference
 
 
 def _params(pb, mu, c0):

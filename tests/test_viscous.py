@@ -18,38 +18,16 @@ from mlsph_jax.integrate import cfl_dt
 from mlsph_jax.rhs import evaluate
 from mlsph_jax.scheme import Scheme
 from mlsph_jax.simulation import Problem, Simulation
-
-TAIT = {"eos.rho0": 1.0, "eos.c0": 10.0, "eos.gamma": 7.0, "eos.p0": 0.0, "physics.kappa": 0.0}
+from mlsph_jax.testing import TAIT, square_lattice, tait_particles
+from mlsph_jax.testing import channel as _channel
 
 
 def lattice(nx, ny, dx, jitter=0.0, seed=0):
-    X, Y = np.meshgrid((np.arange(nx) + 0.5) * dx, (np.arange(ny) + 0.5) * dx, indexing="ij")
-    x = np.stack([X.ravel(), Y.ravel()], 1)
-    if jitter:
-        x = x + np.random.default_rng(seed).uniform(-jitter, jitter, x.shape) * dx
-    return x
-
-
-def tait_particles(x, vel, dx, params, deg=2, rho=None):
-    n = len(x)
-    rho = jnp.ones(n) if rho is None else jnp.asarray(rho)
-    U = to_conservative(rho, jnp.asarray(vel), jnp.zeros(n), get_eos("tait"), params)
-    return make_particles(x, np.full(n, dx * dx), U, ppd=np.full(n, deg))
+    return square_lattice(nx, ny, dx, jitter, seed)
 
 
 def channel(ny, mu, walls_velocity, vel_fn, nx=None, frame="eulerian", slip=False, H=1.0, deg=2, body=None):
-    dx = H / ny
-    nx = nx or 2 * ny
-    x = lattice(nx, ny, dx)
-    vals = {**TAIT, "physics.mu": mu, "boundary.wall_velocity": jnp.asarray(walls_velocity)}
-    if body is not None:
-        vals["physics.body_force"] = jnp.asarray(body)
-    params = Params(vals)
-    pf = tait_particles(x, vel_fn(x), dx, params, deg)
-    p, walls = with_ghosts(pf, [Wall(1, 0.0, 1, slip), Wall(1, H, -1, slip)], 3.2 * dx, params, "tait")
-    domain = Domain((0.0, -4 * dx), (nx * dx, H + 4 * dx), (True, False))
-    scheme = Scheme(eos="tait", viscous=mu > 0, frame=frame, reconstruction_degree=deg, degree=2, beta=1.5)
-    return p, params, scheme, domain, walls
+    return _channel(ny, mu, walls_velocity, vel_fn, nx=nx, frame=frame, slip=slip, H=H, degree=deg, body=body)
 
 
 def fluid_velocity(p):
