@@ -144,7 +144,7 @@ def neighbor_setup(problem, nspec_or_nl=None, *, headroom: float = 1.6, particle
 
 
 def _check_scheme(problem):
-    if problem.scheme.limiter == "mood":
+    if problem.scheme.component("limiter").acts_on_substeps:
         raise InputError("invalid scheme.limiter='mood' for the diffrax path: MOOD limits the forward-Euler "
                          "sub-steps of SSP-RK3 and has no ODE form; allowed: 'none' (or use "
                          "mlsph_jax.differentiable.make_simulate)")

@@ -24,7 +24,6 @@ import jax.numpy as jnp
 from . import neighbors as nb
 from .eos import get_eos, to_primitive
 from .kernels import safe_norm
-from .mood import mood_substep
 from .rhs import Geometry, frame_velocity, geometry, rhs
 from .scheme import Scheme
 from .state import Domain, Kind, Params, Particles
@@ -143,7 +142,7 @@ SSP_RK3_B = (1.0, 0.25, 2.0 / 3.0)
 def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, boundary=None):
     """One SSP-RK3 step.  ``geom_fn(p)`` returns the Geometry of a stage (constant for Eulerian
     runs).  Each stage is a forward-Euler sub-step E = z + dt L(z) combined as a y^n + b E; with
-    ``scheme.limiter == "mood"`` the sub-step is MOOD-limited (:mod:`mlsph_jax.mood`).
+    the limiter of ``scheme.limiter`` computes the sub-step (MOOD: :mod:`mlsph_jax.mood`).
 
     Returns ``(new state, overflow, stats)``: ``overflow`` the :class:`Status` neighbour bits
     of the stages' lists (int32, 0 if none overflowed) and ``stats = (ppd, rhs evaluations,
@@ -155,7 +154,7 @@ def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, boun
     :class:`mlsph_jax.boundaries.MirrorWalls`) regenerates ghost particles before every stage
     and after the step.
     """
-    mood_on = scheme.limiter == "mood"
+    limiter = scheme.component("limiter")
 
     def stage(carry, ab):
         z, overflow, ppd_min, n_evals, unresolved, unres_particle = carry
@@ -167,47 +166,23 @@ def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, boun
         def euler(zz):
             return _euler(zz, dt, rhs(zz, params, geom, scheme))
 
-        if mood_on:
-            e, ppd, n, unres = mood_substep(z, params, dt, geom, scheme, euler)
-            ppd_min = jnp.minimum(ppd_min, ppd)
-            unres, first = _unresolved_particle(unres, z, e, ppd, geom, params, scheme)
-            unres_particle = jnp.where(unres_particle >= 0, unres_particle, first)
-            n_evals, unresolved = n_evals + n, unresolved + unres.astype(jnp.int32)
-        else:
-            e = euler(z)
-            n_evals = n_evals + 1
+        e, ppd, n, unres = limiter.substep(z, params, dt, geom, scheme, euler)
+        ppd_min = jnp.minimum(ppd_min, ppd)
+        unres = jax.lax.stop_gradient(unres)
+        first = jnp.where(jnp.any(unres), jnp.argmax(unres), -1).astype(jnp.int32)
+        unres_particle = jnp.where(unres_particle >= 0, unres_particle, first)
+        n_evals, unresolved = n_evals + n, unresolved + jnp.any(unres).astype(jnp.int32)
         cand = _combine(a, p, b, e)
         return (cand, overflow | overflow_bits(geom), ppd_min, n_evals, unresolved, unres_particle), None
 
     coeffs = (jnp.asarray(SSP_RK3_A), jnp.asarray(SSP_RK3_B))
-    ppd_start = jnp.full_like(p.ppd, scheme.reconstruction_degree) if mood_on else p.ppd
+    ppd_start = jnp.full_like(p.ppd, scheme.reconstruction_degree) if limiter.needs_high_order else p.ppd
     zero = jnp.asarray(0, jnp.int32)
     init = (p, zero, ppd_start, zero, zero, jnp.asarray(-1, jnp.int32))
     (out, overflow, ppd_min, n_evals, unresolved, unres_particle), _ = jax.lax.scan(stage, init, coeffs)
     if boundary is not None:
         out = boundary.apply(out, params)
     return out.replace(ppd=ppd_min), overflow, (ppd_min, n_evals, unresolved, unres_particle)
-
-
-def _unresolved_particle(unres, z, e, ppd, geom, params, scheme):
-    """(any unresolved, first particle still flagged or -1) of a MOOD sub-step.  ``unres`` is the
-    limiter's flag output: per particle ``[N]`` or a scalar; for a scalar the flags of the
-    returned candidate are recomputed, only when they are unresolved (``lax.cond``: free
-    otherwise)."""
-    unres = jax.lax.stop_gradient(unres)
-    if jnp.ndim(unres) == 1:
-        return jnp.any(unres), jnp.where(jnp.any(unres), jnp.argmax(unres), -1).astype(jnp.int32)
-
-    def first_flagged(_):
-        from .mood import detect, nad_fields, stencil_bounds
-
-        zz, ee = jax.lax.stop_gradient((z, e))
-        U_z = zz.q / zz.vol[:, None]
-        bounds = stencil_bounds(nad_fields(U_z, scheme, params), geom.idx, geom.mask) if scheme.mood_nad else None
-        f = detect(ee.q / ee.vol[:, None], bounds, scheme, params) & (zz.kind == Kind.FLUID) & (ppd > 0)
-        return jnp.where(jnp.any(f), jnp.argmax(f), -1).astype(jnp.int32)
-
-    return unres, jax.lax.cond(unres, first_flagged, lambda _: jnp.asarray(-1, jnp.int32), None)
 
 
 def _mood_stats(stats, p: Particles, scheme: Scheme):

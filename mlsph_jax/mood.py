@@ -52,7 +52,8 @@ from .state import Kind, Params, Particles
 __all__ = ["LIMITERS", "NAD_VARIABLES", "DELTA_FLOORS", "admissible", "detect", "mood_substep", "nad_fields",
            "stencil_bounds"]
 
-LIMITERS: Registry = Registry("scheme.limiter", protocol=("substep", "needs_high_order"),
+LIMITERS: Registry = Registry("scheme.limiter",
+                              protocol=("substep", "needs_high_order", "acts_on_substeps", "summary_key"),
                               doc="a-posteriori limiters of the forward-Euler sub-step of each stage")
 NAD_VARIABLES: Registry = Registry("scheme.mood_variables", protocol=("fields",),
                                    doc="variables checked by MOOD's NAD detector")
@@ -150,10 +151,10 @@ def mood_substep(z: Particles, params: Params, dt, geom, scheme, euler):
     """The MOOD-limited forward-Euler sub-step of one stage.
 
     ``euler(z_with_ppd) -> (E, dz)`` computes the candidate for a PPD map (the caller's rhs and
-    update).  Returns ``(E, ppd, n_evals, unresolved)``: ``unresolved`` is set when flags remain
-    after ``mood_max_iter`` iterations, or when a particle already at the parachute (degree 0)
-    has an inadmissible candidate (PAD) — first order is the last resort, so such a stage is never
-    accepted silently.
+    update).  Returns ``(E, ppd, n_evals, unresolved[N])``: ``unresolved`` flags the particles
+    still flagged after ``mood_max_iter`` iterations, and those already at the parachute (degree
+    0) whose candidate is inadmissible (PAD) — first order is the last resort, so such a stage is
+    never accepted silently.
     """
     high = scheme.reconstruction_degree
     fluid = z.kind == Kind.FLUID
@@ -185,18 +186,26 @@ def mood_substep(z: Particles, params: Params, dt, geom, scheme, euler):
     U_E = jax.lax.stop_gradient(E.q / E.vol[:, None])
     pad_fail = ~admissible(U_E, scheme, params) if scheme.mood_pad else ~jnp.all(jnp.isfinite(U_E), axis=1)
     parachute_failed = fluid & (ppd == 0) & pad_fail
-    return E, ppd, n, jnp.any(f) | jnp.any(parachute_failed)
+    return E, ppd, n, f | parachute_failed
 
 
 @dataclasses.dataclass(frozen=True)
 class NoLimiter:
-    """No a-posteriori limiting: the candidate of the scheme's reconstruction degree is accepted."""
+    """No a-posteriori limiting: the candidate of the scheme's reconstruction degree is accepted.
+
+    Limiter protocol: ``substep(z, params, dt, geom, scheme, euler) -> (E, ppd, n_evals,
+    unresolved[N])`` computes the stage's forward-Euler sub-step E = z + dt L(z) (``euler(z)``
+    evaluates it for the degree map ``z.ppd``); ``needs_high_order``: it works on per-particle
+    reconstruction degrees (reset to the scheme's degree every step) and needs one above 0;
+    ``acts_on_substeps``: it has no ODE form (the diffrax path refuses it); ``summary_key``: the
+    summary entry of its statistics, or ``None``."""
 
     needs_high_order: bool = False
+    acts_on_substeps: bool = False
+    summary_key: str | None = None
 
     def substep(self, z: Particles, params: Params, dt, geom, scheme, euler):
-        """``(E, ppd, n_evals, unresolved)`` of the stage's forward-Euler sub-step."""
-        return euler(z), z.ppd, jnp.asarray(1, jnp.int32), jnp.asarray(False)
+        return euler(z), z.ppd, jnp.asarray(1, jnp.int32), jnp.zeros(z.ppd.shape, bool)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -204,6 +213,8 @@ class MOODLimiter:
     """MOOD a-posteriori order reduction (module docstring; thesis §3.6.3)."""
 
     needs_high_order: bool = True
+    acts_on_substeps: bool = True
+    summary_key: str | None = "mood"
 
     def substep(self, z: Particles, params: Params, dt, geom, scheme, euler):
         return mood_substep(z, params, dt, geom, scheme, euler)

@@ -212,7 +212,7 @@ class Simulation:
             dt_last=float(carry.dt_last),
             particle_updates_per_s=float(int(final.n) * int(carry.step) / max(wall - compile_time, 1e-12)),
         )
-        if pb.scheme.limiter == "mood":
+        if pb.scheme.component("limiter").summary_key == "mood":
             summary["mood"] = mood_summary(carry)
         if series:
             summary["timeseries"] = {k: [row[k] for row in series] for k in series[0]}
