@@ -254,7 +254,7 @@ def test_low_mach_options_are_the_plain_flux_at_mach_one_and_above(kind):
         w = np.zeros((100, d))
         hllc = pair_flux(scheme_for("hllc", "none", kind), Um, Up, w, A, P)
         rus = pair_flux(scheme_for("rusanov", "none", kind), Um, Up, w, A, P)
-        for flux, lm, ref, tol in [("hllc_lm", "none", hllc, 0.0), ("hllc_zha", "none", hllc, 1e-13),
+        for flux, lm, ref, tol in [("hllc_lm", "none", hllc, 1e-13), ("hllc_zha", "none", hllc, 1e-13),
                                    ("hllc", "thornber", hllc, 0.0), ("rusanov", "thornber", rus, 0.0)]:
             for mref in ((0.1, 1.0) if flux == "hllc_lm" else (None,)):
                 G = pair_flux(scheme_for(flux, lm, kind, mref), Um, Up, w, A, P)
