@@ -87,9 +87,11 @@ def f_w(U, w, A, kind, P):
 # exact properties of HLLC
 # ------------------------------------------------------------------------------------------------
 
-def toro_hllc(UL, UR, w, A, eos, P):
-    """Toro (2009) eq. 10.26, 10.37-10.39, 10.48 transcribed literally (one pair, numpy, n = A/|A|,
-    relative speeds, F_w in the moving frame)."""
+def toro_hllc(UL, UR, w, A, eos, P, variant="hllc", mref=0.5):
+    """Literal transcriptions (one pair, numpy, n = A/|A|, relative speeds, F_w in the moving
+    frame): Toro (2009) eq. 10.26, 10.37-10.39, 10.48 (``hllc``); the centred form of HLLC-LM,
+    Fleischmann et al. (2020) (``lm``); Toro's star-pressure form (eq. 10.41 with a mean P*) with
+    the limited P* (``zha``)."""
     d = len(A)
     amag = np.linalg.norm(A)
     n = A / amag
@@ -105,6 +107,7 @@ def toro_hllc(UL, UR, w, A, eos, P):
     vL, vR = (uL - w) @ n, (uR - w) @ n
     SL, SR = min(vL - cL, vR - cR), max(vL + cL, vR + cR)
     Ss = (pR - pL + rL * vL * (SL - vL) - rR * vR * (SR - vR)) / (rL * (SL - vL) - rR * (SR - vR))
+    M = max(np.linalg.norm(uL - w) / cL, np.linalg.norm(uR - w) / cR)
 
     def F(U, u, p, v):
         f = [U[0] * v, *(U[1:1 + d] * v + p * n)]
@@ -117,31 +120,46 @@ def toro_hllc(UL, UR, w, A, eos, P):
             out.append(f * (U[-1] / r + (Ss - v) * (Ss + w @ n + p / (r * (S - v)))))
         return np.array(out)
 
+    FL, FR = F(UL, uL, pL, vL), F(UR, uR, pR, vR)
+    sL, sR = star(UL, rL, uL, pL, vL, SL), star(UR, rR, uR, pR, vR, SR)
     if SL >= 0:
-        G = F(UL, uL, pL, vL)
+        G = FL
+    elif SR <= 0:
+        G = FR
+    elif variant == "lm":
+        phi = np.sin(min(1.0, M / mref) * np.pi / 2)
+        G = 0.5 * (FL + FR) + 0.5 * (phi * SL * (sL - UL) + abs(Ss) * (sL - sR) + phi * SR * (sR - UR))
+    elif variant == "zha":
+        chi = min(1.0, max(M, 3.0 * max(vL - vR, 0.0) / (0.5 * (cL + cR))))
+        Pst = 0.5 * (pL + pR) + chi * 0.5 * (rL * (SL - vL) * (Ss - vL) + rR * (SR - vR) * (Ss - vR))
+        Dst = np.array([0.0, *n] + ([Ss + w @ n] if eos.has_energy else []))
+        U, FK, S = (UL, FL, SL) if Ss >= 0 else (UR, FR, SR)
+        G = (Ss * (S * U - FK) + S * Pst * Dst) / (S - Ss)
     elif Ss >= 0:
-        G = F(UL, uL, pL, vL) + SL * (star(UL, rL, uL, pL, vL, SL) - UL)
-    elif SR > 0:
-        G = F(UR, uR, pR, vR) + SR * (star(UR, rR, uR, pR, vR, SR) - UR)
+        G = FL + SL * (sL - UL)
     else:
-        G = F(UR, uR, pR, vR)
+        G = FR + SR * (sR - UR)
     return G * amag
 
 
 @pytest.mark.parametrize("kind", list(EOS_PARAMS))
-def test_hllc_is_toros_four_case_formula(kind):
-    """Subsonic and supersonic pairs, moving frames, 1-3D: the fused formula equals a literal
-    transcription of Toro's HLLC to round-off."""
+@pytest.mark.parametrize("flux", ["hllc", "hllc_lm", "hllc_zha"])
+def test_hllc_fluxes_are_their_literal_formulas(kind, flux):
+    """Subsonic and supersonic pairs (Mach 0.05 to 2), moving frames, 1-3D: the fused formulas
+    equal literal transcriptions of Toro's HLLC, Fleischmann's centred HLLC-LM and the
+    star-pressure form with the limited P*, to round-off."""
     rng = np.random.default_rng(3)
     eos = get_eos(kind)
+    variant = {"hllc": "hllc", "hllc_lm": "lm", "hllc_zha": "zha"}[flux]
     for d in (1, 2, 3):
-        U, P = random_states(kind, 120, d, rng, mach=2.0)
-        Um, Up = U[:60], U[60:]
-        w = rng.normal(size=(60, d)) * rng.choice([0.0, 0.5], size=(60, 1))
-        A = rng.normal(size=(60, d))
-        G = pair_flux(scheme_for("hllc", "none", kind), Um, Up, w, A, P)
-        ref = np.stack([toro_hllc(Um[i], Up[i], w[i], A[i], eos, P) for i in range(60)])
-        np.testing.assert_allclose(G, ref, rtol=0, atol=1e-13 * np.abs(ref).max())
+        for mach in (0.05, 0.5, 2.0):
+            U, P = random_states(kind, 80, d, rng, mach=mach)
+            Um, Up = U[:40], U[40:]
+            w = rng.normal(size=(40, d)) * rng.choice([0.0, 0.1 * mach], size=(40, 1))
+            A = rng.normal(size=(40, d))
+            G = pair_flux(scheme_for(flux, "none", kind), Um, Up, w, A, P)
+            ref = np.stack([toro_hllc(Um[i], Up[i], w[i], A[i], eos, P, variant) for i in range(40)])
+            np.testing.assert_allclose(G, ref, rtol=0, atol=1e-13 * np.abs(ref).max())
 
 
 @pytest.mark.parametrize("kind", ["ideal_gas", "stiffened_gas"])
