@@ -282,11 +282,12 @@ def hllc_components(Um, Up, w, A, eos: EOS, params, *, variant: str = "hllc", re
       G = F_K + (1 + phi)/2 S_K (U*_K - U_K) + (phi - 1)/2 S_O (U*_O - U_O) (O the other side),
       which is what is evaluated (with clipped speeds: phi = 1 wherever a pair is supersonic,
       since M_loc >= |v_K|/c_K > 1 >= M_ref there).  phi = 1 (plain HLLC) for M_loc >= M_ref.
-      [Formula from memory of the paper; the paper writes Ma_local with the face-normal
-      velocity, here the whole relative velocity so that it is HLLC wherever M >= 1.]
+      [The form and phi agree with the JAX-Fluids HLLC-LM of the same group (Fleischmann et al.
+      eq. 18-19, 23-25, Ma_limit = 0.1), which takes Ma_local with the face-normal velocity; here
+      the whole relative velocity, so that the flux is HLLC wherever M >= 1.]
     * ``"zha"``: HLLC in Toro's star-pressure form (Pi_K = P* - p_K) with the dissipative part of
-      P* limited after Zhang, Hu & Adams (2017, JCP 335, 605-620, "A weakly compressible SPH
-      method based on a low-dissipation Riemann solver"): P* = (p_L + p_R)/2 + chi D,
+      P* limited after Zhang, Hu & Adams (2017, JCP 335, "A weakly compressible SPH method based
+      on a low-dissipation Riemann solver"): P* = (p_L + p_R)/2 + chi D,
       D = 1/2 [z_L (S* - v_L) + z_R (S* - v_R)] (so that chi = 1 is HLLC: P* = p*), and
       chi = min(1, max(M_loc, eta max(v_L - v_R, 0) / c_bar)), eta = 3, c_bar = (c_L + c_R)/2;
       since p* = p_K + z_K g_K on either side, Pi_K = chi z_K g_K - (1 - chi)(p_K - p_O)/2 (what
@@ -295,8 +296,10 @@ def hllc_components(Um, Up, w, A, eos: EOS, params, *, variant: str = "hllc", re
       with Zhang et al.'s beta = min(eta max(v_L - v_R, 0), c_bar): no pressure dissipation in
       expansion, full dissipation in strong compression.  The floor M_loc is not in the paper
       (theirs is a weakly compressible scheme); it makes the flux HLLC for M >= 1 and keeps the
-      low-Mach (Rieper-type, O(M)) pressure dissipation in expansion.  [The closest
-      well-defined transcription of their acoustic-solver limiter to HLLC, not their scheme.]
+      low-Mach (Rieper-type, O(M)) pressure dissipation in expansion.  [The limiter agrees with
+      the authors' SPHinXsys AcousticRiemannSolver (pressure dissipation rho c u_jump
+      min(3 max(u_jump/c, 0), 1), velocity dissipation unlimited); its transcription to HLLC and
+      the Mach floor are this code's, not their scheme.]
     """
     if variant not in HLLC_VARIANTS:
         raise ValueError(f"invalid variant={variant!r}; allowed: {', '.join(HLLC_VARIANTS)}")

@@ -161,8 +161,8 @@ class NoLowMachCorrection:
 
 @dataclasses.dataclass(frozen=True)
 class ThornberCorrection:
-    """Thornber, Mosedale, Drikakis, Youngs, Williams (2008, JCP 227, 4873-4894, "An improved
-    reconstruction method for compressible flows with low Mach number features"): the velocity
+    """Thornber, Mosedale, Drikakis, Youngs & Williams (2008, JCP 227, "An improved reconstruction
+    method for compressible flows with low Mach number features"): the velocity
     jump between the two states is scaled by z = min(1, M_loc),
 
         u_L' = (u_L + u_R)/2 + z (u_L - u_R)/2,   u_R' = (u_L + u_R)/2 + z (u_R - u_L)/2,
