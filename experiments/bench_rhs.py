@@ -5,7 +5,11 @@ volumes dx^2, ideal gas (gamma = 1.4) with a smooth non-uniform state (density, 
 pressure waves).  Schemes (Eulerian frame by default):
 
 * ``mlsph_ale`` degree 2 and 3 (full MLS derivative, reconstruction degree = degree, beta 1.5);
-* ``sph_ale`` (kernel areas, beta 2, Taylor reconstruction of degree 2).
+* ``sph_ale`` (kernel areas, beta 2, Taylor reconstruction of degree 2);
+
+each with every numerical flux of ``--flux`` (default ``rusanov``; e.g. ``--flux rusanov hllc
+hllc_lm hllc_zha``; ``hllc_lm`` gets ``scheme.reference_mach`` from ``--reference-mach``) and every
+low-Mach reconstruction of ``--low-mach`` (default ``none``; e.g. ``--low-mach none thornber``).
 
 For every scheme and size the neighbour list is built once (not timed); then
 
@@ -16,12 +20,15 @@ For every scheme and size the neighbour list is built once (not timed); then
 
 each compiled ahead of time (``jax.jit(f).lower(...).compile()``, compile time reported
 separately) and timed as the median of ``--repeat`` runs.  Throughput is given as
-right-hand-side evaluations per second and particle updates per second (N / time).
-Writes ``experiments/output/bench_rhs.json``.  Not a test.
+right-hand-side evaluations per second and particle updates per second (N / time); for every
+flux variant after the first of a scheme and size, the cost ratio of its ``rhs`` time to the
+first one's.  Writes ``experiments/output/bench_rhs.json``.  Not a test.
 
 Usage::
 
     python experiments/bench_rhs.py --sizes 10000 40000 160000 --repeat 5
+    python experiments/bench_rhs.py --sizes 40000 --schemes mlsph_ale-2 --flux rusanov hllc hllc_lm hllc_zha \
+        --low-mach none thornber
 """
 
 from __future__ import annotations
@@ -83,8 +90,12 @@ def _time(fn, args, repeat: int):
     return float(np.median(ts)), float(np.min(ts))
 
 
-def run(name: str, n_target: int, repeat: int, frame: str, seed: int) -> dict:
-    scheme = Scheme(**SCHEMES[name], frame=frame)
+def run(name: str, n_target: int, repeat: int, frame: str, seed: int, flux: str = "rusanov",
+        low_mach: str = "none", reference_mach: float = 0.1, keep: list | None = None) -> dict:
+    from mlsph_jax.flux import FLUXES
+
+    mref = reference_mach if getattr(FLUXES.get(flux, "--flux"), "uses_reference_mach", False) else 0.0
+    scheme = Scheme(**SCHEMES[name], frame=frame, flux=flux, low_mach_reconstruction=low_mach, reference_mach=mref)
     rng = np.random.default_rng(seed)
     x, dx = layout(n_target, rng)
     n = x.shape[0]
@@ -107,6 +118,9 @@ def run(name: str, n_target: int, repeat: int, frame: str, seed: int) -> dict:
 
     out = dict(
         scheme=name,
+        flux=flux,
+        low_mach_reconstruction=low_mach,
+        reference_mach=mref,
         method=scheme.method,
         degree=scheme.degree,
         reconstruction_degree=scheme.reconstruction_degree,
@@ -135,7 +149,22 @@ def run(name: str, n_target: int, repeat: int, frame: str, seed: int) -> dict:
         out[f"{k}_particles_per_s"] = n / out[f"{k}_s"]
     dq = np.asarray(rhs_c(particles, params, geom)[2])
     out["checksum_dq_abs"] = float(np.abs(dq).sum())
+    if keep is not None:      # the compiled rhs and its arguments, for the interleaved timing
+        keep.append((rhs_c, (particles, params, geom)))
     return out
+
+
+def interleaved_min(calls, rounds: int) -> list[float]:
+    """Minimum time of each compiled call over ``rounds`` rounds that call them in turn (A B C A B
+    C ...): on a shared machine, load changes hit every variant alike, and the minimum is the
+    least disturbed run."""
+    best = [float("inf")] * len(calls)
+    for _ in range(rounds):
+        for i, (fn, a) in enumerate(calls):
+            t0 = time.perf_counter()
+            jax.block_until_ready(fn(*a))
+            best[i] = min(best[i], time.perf_counter() - t0)
+    return best
 
 
 def main(argv=None) -> None:
@@ -144,6 +173,14 @@ def main(argv=None) -> None:
     p.add_argument("--schemes", nargs="+", default=list(SCHEMES), choices=list(SCHEMES))
     p.add_argument("--repeat", type=int, default=5)
     p.add_argument("--frame", default="eulerian", choices=["eulerian", "lagrangian"])
+    p.add_argument("--flux", nargs="+", default=["rusanov"], help="registered fluxes (scheme.flux) to time")
+    p.add_argument("--low-mach", nargs="+", default=["none"],
+                   help="low-Mach reconstructions (scheme.low_mach_reconstruction) to time")
+    p.add_argument("--interleave", type=int, default=0,
+                   help="after the variants of a scheme and size, time their rhs in N interleaved rounds "
+                        "(minimum; robust cost ratios on a loaded machine); 0 = off")
+    p.add_argument("--reference-mach", type=float, default=0.1,
+                   help="scheme.reference_mach for the fluxes that need one (hllc_lm)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
         "--out",
@@ -153,26 +190,45 @@ def main(argv=None) -> None:
     args = p.parse_args(argv)
 
     hdr = (
-        f"{'scheme':<12} {'N':>7} {'K':>3} {'comp g/r/gr s':>15} {'rhs s':>8} {'rhs p/s':>9} "
-        f"{'geom s':>8} {'g+r s':>8} {'g+r p/s':>9} {'g+r eval/s':>10}"
+        f"{'scheme':<12} {'flux':<18} {'N':>7} {'K':>3} {'comp g/r/gr s':>15} {'rhs s':>8} {'rhs p/s':>9} "
+        f"{'ratio':>6} {'geom s':>8} {'g+r s':>8} {'g+r p/s':>9} {'g+r eval/s':>10}"
     )
     print(hdr)
     print("-" * len(hdr))
     rows = []
+    variants = [(f, lm) for f in args.flux for lm in args.low_mach]
     for name in args.schemes:
         for n in args.sizes:
-            r = run(name, n, args.repeat, args.frame, args.seed)
-            rows.append(r)
-            comp = "/".join(
-                f"{r[k]:.1f}" for k in ("compile_geometry_s", "compile_rhs_s", "compile_geom_rhs_s")
-            )
-            print(
-                f"{name:<12} {r['n']:>7} {r['capacity']:>3} {comp:>15} {r['rhs_s']:>8.4f} "
-                f"{r['rhs_particles_per_s']:>9.3e} {r['geometry_s']:>8.4f} "
-                f"{r['geom_rhs_s']:>8.4f} "
-                f"{r['geom_rhs_particles_per_s']:>9.3e} {r['geom_rhs_evals_per_s']:>10.2f}",
-                flush=True,
-            )
+            first, keep, group = None, ([] if args.interleave else None), []
+            for flux, lm in variants:
+                r = run(name, n, args.repeat, args.frame, args.seed, flux, lm, args.reference_mach, keep)
+                group.append(r)
+                first = first or r
+                r["rhs_cost_ratio"] = r["rhs_s"] / first["rhs_s"]
+                r["ratio_to"] = f"{first['flux']}+{first['low_mach_reconstruction']}"
+                rows.append(r)
+                comp = "/".join(
+                    f"{r[k]:.1f}" for k in ("compile_geometry_s", "compile_rhs_s", "compile_geom_rhs_s")
+                )
+                label = flux if lm == "none" else f"{flux}+{lm}"
+                print(
+                    f"{name:<12} {label:<18} {r['n']:>7} {r['capacity']:>3} {comp:>15} {r['rhs_s']:>8.4f} "
+                    f"{r['rhs_particles_per_s']:>9.3e} {r['rhs_cost_ratio']:>6.3f} {r['geometry_s']:>8.4f} "
+                    f"{r['geom_rhs_s']:>8.4f} "
+                    f"{r['geom_rhs_particles_per_s']:>9.3e} {r['geom_rhs_evals_per_s']:>10.2f}",
+                    flush=True,
+                )
+            if args.interleave:
+                best = interleaved_min(keep, args.interleave)
+                for r, b in zip(group, best, strict=True):
+                    r["rhs_interleaved_min_s"] = b
+                    r["rhs_interleaved_ratio"] = b / best[0]
+                labels = [r["flux"] + ("" if r["low_mach_reconstruction"] == "none"
+                                       else "+" + r["low_mach_reconstruction"]) for r in group]
+                print(f"  interleaved minimum of {args.interleave} rounds (rhs s, ratio to the first): "
+                      + ", ".join(f"{lab} {b:.4f} {b / best[0]:.3f}" for lab, b in zip(labels, best, strict=True)),
+                      flush=True)
+                del keep
     meta = dict(
         jax=jax.__version__,
         mlsph_jax=mlsph_jax.__version__,
@@ -183,6 +239,7 @@ def main(argv=None) -> None:
         repeat=args.repeat,
         frame=args.frame,
         dtype=str(jnp.zeros(()).dtype),
+        interleave=args.interleave,
     )
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(dict(meta=meta, results=rows), indent=2))

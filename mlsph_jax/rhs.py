@@ -9,8 +9,10 @@ MLSPH-ALE (thesis eq. 4.36, 4.32, 4.28; SPEC §5.3):
 SPH-ALE (thesis eq. 3.5-3.7, 4.27): the same with A_ij = 2 V_i V_j grad_i W(x_i - x_j, h_ij),
 h_ij = (h_i + h_j)/2, and particles moved by the Shepard average of w (eq. 3.7).
 
-G_ij is the Rusanov flux (:mod:`mlsph_jax.flux`) between the Riemann states reconstructed at the
-pair midpoint x_ij from each side:
+G_ij is the numerical flux ``scheme.flux`` (:mod:`mlsph_jax.flux`: Rusanov, HLLC and its low-Mach
+variants) between the Riemann states reconstructed at the pair midpoint x_ij from each side, after
+the optional low-Mach correction ``scheme.low_mach_reconstruction``; pairs that MOOD demoted to
+first order use ``scheme.parachute_flux`` (default: the same flux, evaluated once):
 
 * ``mlsph_ale``: direct MLS reconstruction, U^-_ij = p((x_ij - x_i)/h_i)^T C_i U_{S_i} (eq. 4.39 as
   read in SPEC §13.1 item 6), and symmetrically from j;
@@ -30,7 +32,7 @@ Implementation (performance on CPU).  Everything per pair is written on [rows, K
 1. per block, the fit a_i = C_i F_S (all m x nv sums in one variadic reduction) and the i-side
    midpoint states, stored as ``own[N, K, nv]``;
 2. per block, the j-side states by a flat gather ``own.reshape(N K, nv)[j K + rev]``, the
-   Rusanov flux, and all sums over the stencil (sum_j G.A, sum_j A, dV, dx) as one variadic
+   numerical flux, and all sums over the stencil (sum_j G.A, sum_j A, dV, dx) as one variadic
    reduction, which XLA:CPU fuses into a single loop.
 
 The results equal the straightforward array formulation to round-off
@@ -138,6 +140,8 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme):
 
     variables = scheme.component("reconstruction_variables")
     flux = scheme.component("flux")
+    parachute = scheme.parachute()                  # None: MOOD-demoted pairs use the scheme's flux
+    low_mach = scheme.component("low_mach_reconstruction")
     normal = scheme.component("dissipation_normal")
     F = variables.from_conservative(U, eos, params)
     nv = F.shape[1]
@@ -178,7 +182,11 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme):
             pos = r2 > 0
             r = jnp.where(pos, jnp.sqrt(jnp.where(pos, r2, 1.0)), 0.0)
             n_pair = [c / jnp.where(r > 0, r, 1.0) for c in dx]
+        Fm, Fp = low_mach.correct(Fm, Fp, w_ij, eos, params, scheme)
         GA = flux.pair_flux(Fm, Fp, w_ij, A, n_pair, eos, params, scheme)
+        if parachute is not None:                   # (needs MOOD, hence degree > 0 and `high`)
+            G1 = parachute.pair_flux(Fm, Fp, w_ij, A, n_pair, eos, params, scheme)
+            GA = [jnp.where(high, g, g1) for g, g1 in zip(GA, G1, strict=True)]
         pm = _rows(geom.pair_mask, s, b)
         terms = [jnp.where(pm, g, 0.0) for g in GA] + A
         if not eulerian:

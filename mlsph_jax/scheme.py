@@ -18,7 +18,7 @@ from .frames import FRAMES, POSITION_UPDATES, SHIFT_LAWS
 from .kernels import KERNELS, get_kernel
 from .methods import METHODS, default_beta
 from .mood import DELTA_FLOORS, LIMITERS, NAD_VARIABLES
-from .reconstruction import RECONSTRUCTION_VARIABLES, RECONSTRUCTIONS
+from .reconstruction import LOW_MACH_RECONSTRUCTIONS, RECONSTRUCTION_VARIABLES, RECONSTRUCTIONS
 from .registry import Registry
 from .viscous import STRESSES
 
@@ -31,6 +31,7 @@ COMPONENTS: dict[str, Registry] = {
     "kernel": KERNELS,
     "reconstruction": RECONSTRUCTIONS,
     "reconstruction_variables": RECONSTRUCTION_VARIABLES,
+    "low_mach_reconstruction": LOW_MACH_RECONSTRUCTIONS,
     "flux": FLUXES,
     "wave_speed": WAVE_SPEEDS,
     "dissipation_normal": DISSIPATION_NORMALS,
@@ -56,7 +57,14 @@ class Scheme:
                               ``mls_direct`` (the MLS fit evaluated at x_ij, eq. 4.39 read
                               literally; unstable on irregular layouts, see docs/architecture.md)
     reconstruction_variables: ``conservative`` | ``primitive``
-    flux, wave_speed, dissipation_normal: numerical flux options (:mod:`mlsph_jax.flux`)
+    low_mach_reconstruction:  ``none`` | ``thornber``: low-Mach correction of the reconstructed
+                              states before the flux (:mod:`mlsph_jax.reconstruction`)
+    flux, wave_speed, dissipation_normal: numerical flux options (:mod:`mlsph_jax.flux`); the
+                              last two are read by Rusanov only
+    reference_mach:           cutoff Mach number of the options that need one (``hllc_lm``);
+                              0 = not given
+    parachute_flux:           flux of the pairs MOOD reconstructs at first order: ``same`` (the
+                              scheme's flux) or a registered flux (e.g. ``rusanov``)
     self_flux:                keep the -F_i . sum_j A_ij term (thesis eq. 4.36)
     frame:                    ``eulerian`` | ``lagrangian`` | ``ale_shift`` (w = u + dw)
     shift_coefficient:        C of the shifting drift (:func:`mlsph_jax.rhs.shifting_velocity`)
@@ -82,10 +90,13 @@ class Scheme:
     reconstruction_degree: int = 2
     reconstruction: str = "taylor"
     reconstruction_variables: str = "conservative"
+    low_mach_reconstruction: str = "none"
     flux: str = "rusanov"
     wave_speed: str = "rusanov_abs"
     dissipation_normal: str = "area"
     self_flux: bool = True
+    reference_mach: float = 0.0
+    parachute_flux: str = "same"
     frame: str = "eulerian"
     shift_coefficient: float = 0.02
     shift_law: str = "xu"
@@ -131,10 +142,51 @@ class Scheme:
         if self.component("limiter").needs_high_order and self.reconstruction_degree == 0:
             raise InputError(f"invalid scheme.limiter={self.limiter!r} with scheme.reconstruction_degree=0; allowed: "
                              "this limiter needs a high-order candidate (reconstruction_degree 1..3) to reduce")
-        for field in COMPONENTS:     # a component may check the rest of the scheme (e.g. a flux and its EOS)
-            check = getattr(self.component(field), "check_scheme", None)
+        self._check_flux_options()
+        in_use = [self.component(f) for f in COMPONENTS] + ([self.parachute()] if self.parachute() else [])
+        for comp in in_use:     # a component may check the rest of the scheme (e.g. a flux and its EOS)
+            check = getattr(comp, "check_scheme", None)
             if check is not None:
                 check(self)
+
+    def _check_flux_options(self):
+        """The parachute flux, the reference Mach number and the Rusanov-only options: a value that
+        nothing in use reads is an error (nothing is silently ignored)."""
+        if self.parachute_flux != "same":
+            if self.parachute_flux not in FLUXES:
+                raise InputError(f"unknown scheme.parachute_flux={self.parachute_flux!r}; allowed: same, "
+                                 f"{', '.join(FLUXES.names())}")
+            if not self.component("limiter").needs_high_order:
+                raise InputError(f"invalid scheme.parachute_flux={self.parachute_flux!r} with scheme.limiter="
+                                 f"{self.limiter!r}: only MOOD demotes pairs to first order; allowed: same, or a "
+                                 "limiter that reduces the order (mood)")
+        m = self.reference_mach
+        if isinstance(m, bool) or not isinstance(m, int | float) or not 0.0 <= m <= 1.0:
+            raise InputError(f"invalid scheme.reference_mach={m!r}; allowed: a float in [0, 1] (0 = not given)")
+        fluxes = [self.component("flux")] + ([self.parachute()] if self.parachute() else [])
+        users = fluxes + [self.component("low_mach_reconstruction")]
+        if m != 0.0 and not any(getattr(c, "uses_reference_mach", False) for c in users):
+            need = [n for n, f in FLUXES.items() if getattr(f, "uses_reference_mach", False)]
+            raise InputError(f"invalid scheme.reference_mach={m!r}: nothing in the scheme reads it (scheme.flux="
+                             f"{self.flux!r}, scheme.parachute_flux={self.parachute_flux!r}, "
+                             f"scheme.low_mach_reconstruction={self.low_mach_reconstruction!r}); allowed: 0, or a "
+                             f"flux that needs it ({', '.join(need)})")
+        defaults = {f.name: f.default for f in dataclasses.fields(Scheme)}
+        for field in ("wave_speed", "dissipation_normal"):
+            value = getattr(self, field)
+            if value != defaults[field] and not any(field in getattr(f, "scheme_fields", (field,)) for f in fluxes):
+                readers = [n for n, f in FLUXES.items() if field in getattr(f, "scheme_fields", (field,))]
+                raise InputError(f"invalid scheme.{field}={value!r} with scheme.flux={self.flux!r}: that flux does "
+                                 f"not read scheme.{field}; allowed: {defaults[field]!r}, or a flux that reads it "
+                                 f"({', '.join(readers)})")
+
+    def parachute(self):
+        """The flux of the pairs MOOD demoted to first order, or ``None`` when it is the scheme's
+        flux (``parachute_flux = "same"`` or the same registered object)."""
+        if self.parachute_flux == "same":
+            return None
+        obj = FLUXES.get(self.parachute_flux, "scheme.parachute_flux")
+        return None if obj is self.component("flux") else obj
 
     def component(self, field: str):
         """The registered object named by the scheme field ``field`` (e.g. ``scheme.component("flux")``)."""

@@ -62,15 +62,33 @@ SCHEME_KEYS: dict[str, Key] = {
                               "x_ij (eq. 4.39 read literally; unstable on jittered layouts)"),
     "reconstruction_variables": Key(str, "conservative", choices=names_of("scheme.reconstruction_variables"),
                                     doc="variables reconstructed at the pair midpoints"),
+    "low_mach_reconstruction": Key(str, "none", choices=names_of("scheme.low_mach_reconstruction"),
+                                   doc="low-Mach correction of the reconstructed Riemann states, applied "
+                                       "before any flux: none, or thornber (Thornber et al. 2008, JCP 227: "
+                                       "the velocity jump scaled by z = min(1, M_loc); no change for "
+                                       "M_loc >= 1)"),
     "flux": Key(str, "rusanov", choices=names_of("scheme.flux"),
-                doc="numerical (Riemann) flux at the pair midpoints"),
+                doc="numerical (Riemann) flux at the pair midpoints: rusanov (thesis), hllc (Toro 2009 "
+                    "ch. 10, Davis wave speeds, any EOS), hllc_lm (HLLC-LM of Fleischmann, Adami & Adams "
+                    "2020, JCP 423: acoustic terms scaled by phi = sin(min(1, M_loc/M_ref) pi/2), needs "
+                    "reference_mach), hllc_zha (HLLC with the star-pressure dissipation limited after "
+                    "Zhang, Hu & Adams 2017, JCP 335); each low-Mach flux is hllc for M_loc >= 1"),
+    "reference_mach": Key(float, 0.0, minimum=0.0, maximum=1.0, note="0 = not given",
+                          doc="reference (cutoff) Mach number M_ref of the options that need one "
+                              "(hllc_lm: 0.1 in Fleischmann et al. 2020); must be 0 when no option "
+                              "in use reads it"),
+    "parachute_flux": Key(str, "same", choices=lambda: ["same", *registry("scheme.flux").names()],
+                          doc="flux of the pairs MOOD reconstructs at first order (min(ppd_i, ppd_j) "
+                              "= 0): same (the scheme's flux) or a registered flux, e.g. rusanov "
+                              "(needs limiter = mood)"),
     "wave_speed": Key(str, "rusanov_abs", choices=names_of("scheme.wave_speed"),
-                      doc="Rusanov wave-speed estimate: max(|(u-w).n|+c) (standard), or the "
+                      doc="Rusanov wave-speed estimate (read by rusanov only): max(|(u-w).n|+c) (standard), or the "
                           "signed formulas printed in thesis ch. 3 / ch. 4 (reproduction "
                           "studies)"),
     "dissipation_normal": Key(str, "area", choices=names_of("scheme.dissipation_normal"),
                               doc="normal of the Rusanov dissipation term: A_ij/|A_ij| (area) "
-                                  "or the unit vector between the particles (pair)"),
+                                  "or the unit vector between the particles (pair); read by rusanov "
+                                  "only (the HLLC fluxes use A_ij/|A_ij|)"),
     "self_flux": Key(bool, True,
                      doc="include the self-flux term -F_i.sum_j A_ij (thesis default; keeps "
                          "uniform states exact, conserves only up to a quadrature defect)"),
