@@ -6,6 +6,7 @@ assertions where a number is claimed (e.g. docs/extending.md); here every printe
 float must at least be finite.
 """
 
+import ast
 import math
 import re
 from pathlib import Path
@@ -40,19 +41,29 @@ def _finite(value) -> bool:
     return bool(np.all(np.isfinite(arr)))
 
 
+@pytest.fixture
+def clean_registries():
+    """Components that a page registers are removed afterwards (later tests see the package's own)."""
+    from mlsph_jax.registry import all_registries
+
+    before = {kind: set(reg.names()) for kind, reg in all_registries().items()}
+    yield
+    for kind, reg in all_registries().items():
+        for name in set(reg.names()) - before.get(kind, set()):
+            reg.unregister(name)
+
+
 @pytest.mark.parametrize("page", PAGES_WITH_CODE, ids=lambda p: p.name)
-def test_page_examples_run(page, monkeypatch, capsys):
+def test_page_examples_run(page, monkeypatch, capsys, clean_registries):
     monkeypatch.chdir(ROOT)
     ns: dict = {"__name__": f"docs_example_{page.stem}"}
     for k, code in enumerate(_blocks(page)):
-        *body, last = [ln for ln in code.strip().splitlines()]
-        exec(compile("\n".join(body), f"{page.name}[{k}]", "exec"), ns)      # noqa: S102
-        try:                                    # a trailing expression: its value must be finite
-            value = eval(compile(last, f"{page.name}[{k}]:last", "eval"), ns)  # noqa: S307
-        except SyntaxError:
-            exec(compile(last, f"{page.name}[{k}]:last", "exec"), ns)          # noqa: S102
-            value = None
-        assert _finite(value), f"{page.name} block {k}: last expression {last!r} gave {value!r}"
+        tree = ast.parse(code, f"{page.name}[{k}]")
+        last = tree.body.pop() if tree.body and isinstance(tree.body[-1], ast.Expr) else None
+        exec(compile(tree, f"{page.name}[{k}]", "exec"), ns)                                  # noqa: S102
+        if last is not None:                    # a trailing expression: its value must be finite
+            value = eval(compile(ast.Expression(last.value), f"{page.name}[{k}]:last", "eval"), ns)  # noqa: S307
+            assert _finite(value), f"{page.name} block {k}: last expression gave {value!r}"
     out = capsys.readouterr().out
     floats = [float(x) for x in re.findall(r"[-+]?\d+\.\d*(?:[eE][-+]?\d+)?|\bnan\b|\binf\b", out)]
     assert all(math.isfinite(x) for x in floats), out
