@@ -313,6 +313,7 @@ def test_sod_hllc_is_no_worse_than_rusanov_and_has_a_sharper_contact():
     assert out["hllc"][1] < 0.6 * out["rusanov"][1]                   # contact window: measured 0.38x
 
 
+@pytest.mark.slow
 def test_r1_tait_runs_with_hllc():
     """The reduced R1 run of the regression fingerprints (case.n=50, t_end=5e-6) with HLLC: errors
     no worse than 1.1 x the stored Rusanov ones."""
@@ -365,8 +366,8 @@ def test_hllc_runs_on_a_user_registered_eos():
 # ------------------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("extra", [["scheme.flux=hllc", "scheme.reconstruction_degree=3"],
-                                   ["scheme.flux=hllc_lm", "scheme.reference_mach=0.5",
-                                    "scheme.low_mach_reconstruction=thornber"]])
+                                   pytest.param(["scheme.flux=hllc_lm", "scheme.reference_mach=0.5",
+                                                 "scheme.low_mach_reconstruction=thornber"], marks=pytest.mark.slow)])
 def test_gradient_of_a_short_run_matches_central_differences(extra):
     """Taylor-Green (Tait, Mach 0.1, Eulerian), 10 steps: d(kinetic energy)/d(c0, mu) by reverse
     mode against central differences with a relative step of 1e-4 (truncation ~1e-8, round-off

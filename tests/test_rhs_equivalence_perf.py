@@ -144,7 +144,7 @@ def ref_flux(Um, Up, w_ij, A, n_pair, eos, params, wave_speed, normal):
         amag = safe_norm(A)
         n, ndA = A / jnp.where(amag > 0, amag, 1.0)[..., None], amag
     else:
-        n, ndA = n_pair, jnp.sum(n_pair * A, axis=-1)
+        n, ndA = n_pair, jnp.abs(jnp.sum(n_pair * A, axis=-1))   # |n . A|: never anti-diffusive (decision 38)
     vm, vp = jnp.sum((pm.vel - w_ij) * n, -1), jnp.sum((pp.vel - w_ij) * n, -1)
     if wave_speed == "rusanov_abs":
         S = jnp.maximum(jnp.abs(vm) + pm.c, jnp.abs(vp) + pp.c)
