@@ -4,6 +4,7 @@ of every built-in config, reduced (the default-suite regression) or at full size
     python experiments/record_config_metrics.py                 # reduced runs -> stdout JSON
     python experiments/record_config_metrics.py --full --out F  # full configs
     python experiments/record_config_metrics.py --compare F     # rerun and compare with F
+    python experiments/record_config_metrics.py --only A B --update F   # intentional change of A, B
 
 The reduced fingerprints are stored in tests/data/config_fingerprints.json and checked by
 tests/test_config_regression.py: a refactor must keep them to 1e-12 relative.
@@ -25,7 +26,11 @@ def main(argv=None) -> int:
     ap.add_argument("--only", nargs="+", default=None, help="config stems to run")
     ap.add_argument("--out", help="write the fingerprints to this JSON file")
     ap.add_argument("--compare", help="compare with the fingerprints in this JSON file; exit 1 on a difference")
+    ap.add_argument("--update", help="rerun the --only configs and replace their entries in this JSON file "
+                                     "(an intentional numeric change; the other entries are kept)")
     args = ap.parse_args(argv)
+    if args.update and not args.only:
+        ap.error("--update needs --only: name the configs whose numbers changed on purpose")
     ref = json.load(open(args.compare)) if args.compare else None
     names = args.only or builtin_configs()
     out, failed = {}, 0
@@ -41,11 +46,17 @@ def main(argv=None) -> int:
             failed += bool(diff)
             line += "  " + ("same" if not diff else "DIFFERENT: " + "; ".join(diff))
         print(line, file=sys.stderr, flush=True)
+    if args.update:
+        with open(args.update) as f:
+            merged = json.load(f)
+        merged.update(out)
+        with open(args.update, "w") as f:
+            f.write(json.dumps(merged, indent=1, sort_keys=True) + "\n")
     text = json.dumps(out, indent=1, sort_keys=True)
     if args.out:
         with open(args.out, "w") as f:
             f.write(text + "\n")
-    elif ref is None:
+    elif ref is None and not args.update:
         print(text)
     return 1 if failed else 0
 

@@ -16,6 +16,10 @@ A **shifting law** has ``drift(geom, scheme, vol) -> [N, d]``, the unscaled drif
 A **position update** has ``weights(values, dx, h, jsafe, mask, vol, kernel) -> [N, K] | None``:
 the interpolation weights of dx_i/dt = sum_j N_j(x_i) w_j (thesis eq. 4.28), from the method's own
 shape-function values ``values`` (``None`` for kernel SPH-ALE), or ``None`` for dx_i/dt = w_i.
+Whatever it is, the velocity a particle moves with is also the w_i of its fluxes (eq. 4.36) and
+of its volume rate (eq. 4.32), so that the volumes follow the particles (architecture decision
+44; the thesis' fluxes use the un-interpolated w_i, which breaks that, docs/moving_particles.md).
+The shifting drift is added to the interpolated velocity, not interpolated.
 """
 
 from __future__ import annotations
@@ -33,7 +37,7 @@ from .state import Kind
 FRAMES: Registry = Registry("scheme.frame", protocol=("moving", "velocity", "drift"),
                             doc="ALE frame velocity w")
 SHIFT_LAWS: Registry = Registry("scheme.shift_law", protocol=("drift",), doc="particle-shifting drift laws")
-POSITION_UPDATES: Registry = Registry("scheme.position_update", protocol=("weights",),
+POSITION_UPDATES: Registry = Registry("scheme.position_update", protocol=("weights", "fluxes_use_motion"),
                                       doc="interpolant of w that moves the particles")
 
 
@@ -74,7 +78,8 @@ class ShiftedALE:
     """w = u + dw: Lagrangian motion plus the particle-shifting drift of ``scheme.shift_law``
     (SPEC §9, within the ALE frame of thesis T:L1563-1565), dw_i = C U_max drift_i with
     U_max = max |w| over fluid particles and C = ``scheme.shift_coefficient``.  Because the
-    fluxes are computed relative to w (eq. 4.36, 4.32), no interpolation correction is needed."""
+    fluxes are computed relative to the particle velocity (eq. 4.36, 4.32), no interpolation
+    correction is needed."""
 
     moving: bool = True
 
@@ -144,7 +149,14 @@ def shepard_weights(dx, h, jsafe, mask, vol, kernel):
 @dataclasses.dataclass(frozen=True)
 class MethodInterpolant:
     """The method's own interpolant of w: the MLS shape functions for mlsph_ale (thesis eq. 4.28),
-    the Shepard kernel average for sph_ale, which has no shape functions of its own (eq. 3.7)."""
+    the Shepard kernel average for sph_ale, which has no shape functions of its own (eq. 3.7).
+
+    ``fluxes_use_motion``: the fluxes and dV/dt use the interpolated velocity the particle moves
+    with (True, geometric conservation) or, as printed in the thesis, the particle's own w_i
+    (False: ``mls_literal``, kept to reproduce the thesis and the diagnosis in
+    docs/moving_particles.md; its volumes drift away from the particles)."""
+
+    fluxes_use_motion: bool = True
 
     def weights(self, values, dx, h, jsafe, mask, vol, kernel):
         return values if values is not None else shepard_weights(dx, h, jsafe, mask, vol, kernel)
@@ -154,6 +166,8 @@ class MethodInterpolant:
 class ShepardInterpolant:
     """The Shepard kernel average of w (thesis eq. 3.7) for every method."""
 
+    fluxes_use_motion: bool = True
+
     def weights(self, values, dx, h, jsafe, mask, vol, kernel):
         return shepard_weights(dx, h, jsafe, mask, vol, kernel)
 
@@ -162,11 +176,14 @@ class ShepardInterpolant:
 class OwnVelocity:
     """dx_i/dt = w_i: each particle moves with its own frame velocity (no interpolation)."""
 
+    fluxes_use_motion: bool = True
+
     def weights(self, values, dx, h, jsafe, mask, vol, kernel):
         return None
 
 
 POSITION_UPDATES.register("mls", MethodInterpolant())
+POSITION_UPDATES.register("mls_literal", MethodInterpolant(fluxes_use_motion=False))
 POSITION_UPDATES.register("shepard", ShepardInterpolant())
 POSITION_UPDATES.register("w_i", OwnVelocity())
 

@@ -4,7 +4,10 @@ MLSPH-ALE (thesis eq. 4.36, 4.32, 4.28; SPEC §5.3):
 
     d(V_i U_i)/dt = - sum_j [G_ij - s (F_w)_i] . A_ij + V_i S_i,   A_ij = V_i grad N_ji - V_j grad N_ij
     dV_i/dt       =   sum_j (w_ij - w_i) . A_ij
-    dx_i/dt       =   sum_j N_j(x_i) w_j                              (MLS interpolant of w)
+    dx_i/dt       =   w_i = sum_j N_j(x_i) u_j (+ shifting drift)    (MLS interpolant, eq. 4.28)
+
+with one particle velocity w_i in all three (docs/moving_particles.md; ``scheme.position_update``
+"w_i" moves each particle with its own frame velocity instead).
 
 SPH-ALE (thesis eq. 3.5-3.7, 4.27): the same with A_ij = 2 V_i V_j grad_i W(x_i - x_j, h_ij),
 h_ij = (h_i + h_j)/2, and particles moved by the Shepard average of w (eq. 3.7).
@@ -132,11 +135,24 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme):
     frame = scheme.component("frame")
     w = frame.velocity(U, kind, eos, params)
     dw = frame.drift(w, geom, kind, scheme, vol)
-    if dw is not None:
-        w = w + dw
     jsafe = geom.jsafe
     eulerian = not frame.moving
-    interp = not eulerian and geom.interp is not None
+    fluid = (kind == Kind.FLUID)[:, None]
+    dxdt = None
+    if not eulerian and geom.interp is not None:
+        if scheme.component("position_update").fluxes_use_motion:
+            # The particle velocity dx_i/dt: the interpolant of the frame velocity (eq. 4.28) plus
+            # the shifting drift, a particle-scale correction an interpolant would filter out.  The
+            # fluxes (eq. 4.36) and the volume rate (eq. 4.32) use this same velocity, so that the
+            # volumes follow the particles (geometric conservation; docs/moving_particles.md).
+            w = jnp.where(fluid, jnp.einsum("nk,nkd->nd", geom.interp, w[jsafe]), w)
+        else:   # mls_literal: particles move with the interpolant of w + dw, fluxes use w_i + dw_i
+            wd = w if dw is None else w + dw
+            dxdt = jnp.einsum("nk,nkd->nd", geom.interp, wd[jsafe])
+    if dw is not None:
+        w = w + dw
+    if dxdt is None:
+        dxdt = w
 
     variables = scheme.component("reconstruction_variables")
     flux = scheme.component("flux")
@@ -194,12 +210,9 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme):
             for c in range(1, d):
                 dv = dv + (w_ij[c] - wi[c]) * A[c]
             terms.append(dv)
-            if interp:
-                ip = _rows(geom.interp, s, b)
-                terms += [ip * c for c in wj]
         return (jnp.stack(mls.stencil_sums(terms), axis=-1),)
 
-    n_out = nv + d + (0 if eulerian else 1 + (d if interp else 0))
+    n_out = nv + d + (0 if eulerian else 1)
     (sums,) = apx.row_blocks(block, n, apx.block_rows(n, k), [((n, n_out), U.dtype)])
     dq = -sums[:, :nv]
     if scheme.self_flux:
@@ -211,10 +224,7 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme):
         dvol, dxdt = jnp.zeros_like(vol), jnp.zeros_like(x)
     else:
         dvol = sums[:, nv + d]
-        dxdt = sums[:, nv + d + 1:] if interp else w
-    fluid = kind == Kind.FLUID
-    return (jnp.where(fluid[:, None], dxdt, 0.0), jnp.where(fluid, dvol, 0.0),
-            jnp.where(fluid[:, None], dq, 0.0))
+    return (jnp.where(fluid, dxdt, 0.0), jnp.where(fluid[:, 0], dvol, 0.0), jnp.where(fluid, dq, 0.0))
 
 
 def source(U, prim, params: Params, eos):

@@ -69,8 +69,10 @@ class Scheme:
     frame:                    ``eulerian`` | ``lagrangian`` | ``ale_shift`` (w = u + dw)
     shift_coefficient:        C of the shifting drift (:func:`mlsph_jax.rhs.shifting_velocity`)
     shift_law:                ``xu`` (default) | ``fickian``: the drift law of ``ale_shift``
-    position_update:          ``mls`` (the method's own interpolant of w: MLS for mlsph_ale, the
-                              Shepard kernel average T(3.7) for sph_ale) | ``shepard`` | ``w_i``
+    position_update:          ``w_i`` (default: each particle moves with its own w) | ``mls`` (the
+                              method's own interpolant of the frame velocity, eq. 4.28: MLS for
+                              mlsph_ale, the Shepard average T(3.7) for sph_ale) | ``shepard``;
+                              the fluxes and dV/dt use the same particle velocity (decision 44)
     limiter:                  ``none`` | ``mood``
     viscous, heat_conduction: include the viscous stress / heat flux (:mod:`mlsph_jax.viscous`;
                               set by the case builders from physics.mu > 0 / physics.kappa > 0)
@@ -78,7 +80,7 @@ class Scheme:
     mood_*:                   MOOD detectors (:mod:`mlsph_jax.mood`): NAD variables, delta_abs and
                               delta_rel of eq. 3.13, PAD/NAD switches, iteration bound
     eos:                      EOS kind
-    rcond:                    MLS degree-fallback threshold
+    rcond:                    MLS degree-fallback threshold (pivot ratio; decision 2)
     """
 
     method: str = "mlsph_ale"
@@ -100,7 +102,7 @@ class Scheme:
     frame: str = "eulerian"
     shift_coefficient: float = 0.02
     shift_law: str = "xu"
-    position_update: str = "mls"
+    position_update: str = "w_i"
     limiter: str = "none"
     viscous: bool = False
     heat_conduction: bool = False
@@ -113,7 +115,7 @@ class Scheme:
     mood_nad: bool = True
     mood_max_iter: int = 8
     eos: str = "ideal_gas"
-    rcond: float = 1e-6
+    rcond: float = 1e-2
 
     def __post_init__(self):
         for field, reg in COMPONENTS.items():
@@ -132,6 +134,8 @@ class Scheme:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 3:
                 raise InputError(f"invalid scheme.{name}={v!r}; allowed: an integer in 0..3")
+        if not 0.0 <= self.rcond < 1.0:
+            raise InputError(f"invalid scheme.rcond={self.rcond!r}; allowed: 0 <= rcond < 1")
         if not self.beta > 0:
             raise InputError(f"invalid scheme.beta={self.beta!r}; allowed: > 0")
         if not (self.mood_delta_abs >= 0 and self.mood_delta_rel >= 0):

@@ -170,6 +170,10 @@ def ref_rhs(particles, params, geom: Geometry, scheme: Scheme):
         else jnp.where(fluid[:, None], prim.vel, 0.0)
     )
     jsafe = jnp.where(geom.mask, geom.idx, jnp.arange(n)[:, None])
+    w_frame = w
+    if scheme.frame != "eulerian" and scheme.position_update in ("mls", "shepard"):
+        # decision 44: fluxes and dV/dt use the velocity the particles move with
+        w = jnp.where(fluid[:, None], jnp.einsum("nk,nkd->nd", geom.interp, w[jsafe]), w)
     if scheme.reconstruction_variables == "primitive":
         F = jnp.concatenate(
             [prim.rho[:, None], prim.vel] + ([prim.p[:, None]] if eos.has_energy else []), -1
@@ -212,10 +216,10 @@ def ref_rhs(particles, params, geom: Geometry, scheme: Scheme):
     dvol = jnp.sum((w_ij - w[:, None]) * geom.A, axis=(1, 2))
     if scheme.frame == "eulerian":
         dxdt = jnp.zeros_like(x)
-    elif scheme.position_update == "w_i":
-        dxdt = w
+    elif scheme.position_update == "mls_literal":     # the thesis as printed
+        dxdt = jnp.einsum("nk,nkd->nd", geom.interp, w_frame[jsafe])
     else:
-        dxdt = jnp.einsum("nk,nkd->nd", geom.interp, w[jsafe])
+        dxdt = w
     return (
         jnp.where(fluid[:, None], dxdt, 0.0),
         jnp.where(fluid, dvol, 0.0),
@@ -345,7 +349,10 @@ RHS_VARIANTS = [
     (MLS2, dict(wave_speed="printed_ch4", self_flux=False)),
     (MLS2, dict(reconstruction_degree=0, frame="lagrangian", position_update="w_i")),
     (MLS2, dict(eos="tait", frame="lagrangian")),
+    (MLS2, dict(eos="tait", frame="lagrangian", position_update="mls")),
     (SPH, dict(frame="lagrangian")),
+    (SPH, dict(frame="lagrangian", position_update="mls")),
+    (MLS2, dict(frame="lagrangian", position_update="mls_literal")),
     (SPH, dict(reconstruction_variables="primitive")),
 ]
 

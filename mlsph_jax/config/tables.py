@@ -105,9 +105,18 @@ SCHEME_KEYS: dict[str, Key] = {
     "stress": Key(str, "stokes", choices=names_of("scheme.stress"),
                   doc="viscous stress: stokes (mu (grad u + grad u^T - 2/3 div u I)) or "
                       "incompressible (no -2/3 div u term, thesis ch. 3)"),
-    "position_update": Key(str, "mls", choices=names_of("scheme.position_update"),
-                           doc="velocity that moves the particles: MLS interpolant of w, "
-                               "Shepard average of w, or the particle's own w_i"),
+    "position_update": Key(str, "w_i", choices=names_of("scheme.position_update"),
+                           doc="velocity that moves the particles in the lagrangian and ale_shift frames, "
+                               "also used by their fluxes (eq. 4.36) and volumes (eq. 4.32): the "
+                               "particle's own w_i (default), the method's interpolant of the frame "
+                               "velocity (thesis eq. 4.28: MLS for mlsph_ale, Shepard T(3.7) for "
+                               "sph_ale) or its Shepard average, plus the shifting drift "
+                               "(architecture decision 44, docs/moving_particles.md)"),
+    "rcond": Key(float, 1e-2, minimum=0.0, maximum=1.0, exclusive_maximum=True,
+                 doc="MLS degree fallback: a degree level is dropped when a pivot ratio "
+                     "s_j / M_jj of its monomials falls below rcond (architecture decision 2; "
+                     "lattice stencils have >= 0.2, stretched moving-particle stencils reach "
+                     "1e-3, docs/moving_particles.md)"),
     "limiter": Key(str, "none", choices=names_of("scheme.limiter"),
                    doc="a-posteriori limiter: none or MOOD (local reduction of the "
                        "reconstruction degree)"),
