@@ -309,8 +309,10 @@ def test_sod_hllc_is_no_worse_than_rusanov_and_has_a_sharper_contact():
         xc = 0.5 + 0.92745 * res.summary["t_final"]                  # Sod's contact speed u* = 0.92745
         near = np.abs(x - xc) < 0.06
         out[flux] = (res.summary["metrics"]["l1_rho"], float(np.sum(vol[near] * np.abs(f["rho"] - ex["rho"])[near])))
-    assert out["hllc"][0] <= out["rusanov"][0]                        # measured 0.0117 vs 0.0159
-    assert out["hllc"][1] < 0.6 * out["rusanov"][1]                   # contact window: measured 0.38x
+    # measured with the config's position_update = "w_i": 0.0123 vs 0.0147 and 0.48x (0.0117 vs
+    # 0.0159 and 0.38x with the MLS position update the config used before)
+    assert out["hllc"][0] <= out["rusanov"][0]
+    assert out["hllc"][1] < 0.6 * out["rusanov"][1]                   # contact window
 
 
 @pytest.mark.slow
