@@ -238,14 +238,20 @@ def step_status(p: Particles, newp: Particles, params: Params, scheme: Scheme, d
 FIXED_DT_SLACK = 2.0
 
 
-def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: int, nspec=None, boundary=None):
+def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: int, nspec=None, boundary=None,
+               sharding=None):
     """Build ``chunk(carry, params, static_geom, t_stop) -> carry`` running ``n_steps`` steps.
 
     For Eulerian schemes pass the precomputed Geometry as ``static_geom``; for moving particles
-    pass ``None`` and a neighbour spec ``nspec`` (lists rebuilt every stage).
+    pass ``None`` and a neighbour spec ``nspec`` (lists rebuilt every stage).  ``sharding`` (a
+    :class:`mlsph_jax.sharding.ParticleSharding`, multi-device runs) pins the layout of the
+    carry and the geometry to the particle-axis sharding at entry and exit; the partitioner
+    does the rest.
     """
 
     def chunk(carry: Carry, params: Params, static_geom, t_stop):
+        if sharding is not None:
+            carry, static_geom = sharding.constrain((carry, static_geom))
         geom_fn = (lambda p: static_geom) if not scheme.moving else make_stage_geometry(scheme, domain, nspec)
 
         def one(c: Carry, _):
@@ -273,7 +279,7 @@ def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: in
             return jax.lax.cond(active, advance, lambda c: c, c), None
 
         out, _ = jax.lax.scan(one, carry, None, length=n_steps)
-        return out
+        return out if sharding is None else sharding.constrain(out)
 
     return jax.jit(chunk)
 
