@@ -20,6 +20,7 @@ import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -30,7 +31,7 @@ from .integrate import MOOD_STATS, Carry, StepControl, initial_carry
 from .run import RunSetup, setup_run
 from .scheme import Scheme
 from .sharding import particle_sharding
-from .state import Domain, Kind, Params, Particles
+from .state import Domain, Kind, Params, Particles, with_precision
 from .status import Status
 from .status import failure as status_failure
 
@@ -97,7 +98,12 @@ class Simulation:
 
     def __init__(self, problem: Problem, *, cfl: float = 0.3, dt: float = 0.0, chunk: int = 50,
                  max_steps: int = 1_000_000, dt_min: float = 1e-14, headroom: float = 1.3,
-                 cfl_viscous: float = 0.125, devices: int = 1):
+                 cfl_viscous: float = 0.125, devices: int = 1, precision: str = "float64"):
+        #: precision of the state, parameters and geometry (``run.precision``): the problem is
+        #: cast once here, so the chunk traces (and the result holds) that precision
+        self.precision = precision
+        problem = dataclasses.replace(problem, particles=with_precision(problem.particles, precision),
+                                      params=with_precision(problem.params, precision))
         self.problem = problem
         #: particle-axis sharding over ``devices`` devices (``None``: one device; see
         #: :mod:`mlsph_jax.sharding`, the ``run.devices`` setting)
@@ -140,7 +146,8 @@ class Simulation:
     def run(self, out_dir: str | Path | None = None, snapshots: int = 10, progress: bool = True,
             plots: bool = True) -> Result:
         pb = self.problem
-        out = Path(out_dir) if out_dir is not None else None
+        # several processes (jax.distributed): every process runs the same loop, process 0 writes
+        out = Path(out_dir) if out_dir is not None and jax.process_index() == 0 else None
         writer = io.SnapshotWriter(out, pb.particles.dim) if out is not None else None
         if out is not None and pb.config is not None:
             io.write_config(out, pb.config)
@@ -159,7 +166,7 @@ class Simulation:
         t_wall0 = time.perf_counter()
         geom = self._geom(carry.particles)
         params = self._place(pb.params)
-        compile_time = 0.0
+        compile_time = chunk_time = 0.0
         memory = {}
         bar = _progress(pb.t_end, progress)
         status, failure = "ok", None
@@ -172,8 +179,10 @@ class Simulation:
                         self._compiled = self._chunk.lower(carry, params, geom, tgt).compile()
                         compile_time += time.perf_counter() - tc
                         memory = _chunk_memory(self._compiled)
+                    tc = time.perf_counter()
                     carry = self._compiled(carry, params, geom, self._place(jnp.asarray(target)))
                     st = Status(int(carry.status))  # one host sync per chunk
+                    chunk_time += time.perf_counter() - tc
                     t = float(carry.t)
                     bar.update(t, int(carry.step))
                     if st & Status.NEIGHBOR_OVERFLOW:  # (other bits may be its consequences)
@@ -230,6 +239,7 @@ class Simulation:
             dt_last=float(carry.dt_last),
             particle_updates_per_s=float(int(final.n) * int(carry.step) / max(wall - compile_time, 1e-12)),
             devices=1 if self.sharding is None else self.sharding.devices, chunk_memory_bytes=memory,
+            chunk_time_s=chunk_time, precision=self.precision,
         )
         if pb.scheme.component("limiter").summary_key == "mood":
             summary["mood"] = mood_summary(carry)
@@ -357,7 +367,8 @@ def run_problem(problem: Problem, cfg: Mapping | None = None, out_dir=None, quie
     sim = Simulation(problem, cfl=tcfg.get("cfl", 0.3), dt=tcfg.get("dt", 0.0), chunk=tcfg.get("chunk", 50),
                      max_steps=tcfg.get("max_steps", 1_000_000), dt_min=tcfg.get("dt_min", 1e-14),
                      headroom=(cfg or {}).get("scheme", {}).get("neighbor_headroom", 1.3),
-                     cfl_viscous=tcfg.get("cfl_viscous", 0.125), devices=(cfg or {}).get("run", {}).get("devices", 1))
+                     cfl_viscous=tcfg.get("cfl_viscous", 0.125), devices=(cfg or {}).get("run", {}).get("devices", 1),
+                     precision=(cfg or {}).get("run", {}).get("precision", "float64"))
     return sim.run(out_dir, snapshots=ocfg.get("snapshots", 10), progress=ocfg.get("progress", True) and not quiet,
                    plots=ocfg.get("plots", True))
 

@@ -175,6 +175,10 @@ RUN_KEYS: dict[str, Key] = {
                        "axis, mlsph_jax.sharding); must divide the particle count and not exceed "
                        "len(jax.devices()) (host devices: XLA_FLAGS=--xla_force_host_platform_device_count=N; "
                        "several hosts: jax.distributed.initialize)"),
+    "precision": Key(str, "float64", choices=("float64", "float32"),
+                     doc="floating-point precision of the particle state, the parameters and the geometry; "
+                         "float32 keeps the MLS moment matrices and their solves and the Tait pressure in "
+                         "float64 (docs/performance.md: its accuracy and speed)"),
 }
 
 
