@@ -83,8 +83,13 @@ EOS_REGISTRY.register("stiffened_gas")(EOS(
 
 # --- Tait (barotropic): p = rho0 c0^2 / gamma [(rho/rho0)^gamma - 1] + p0 ----------------------
 def _tait_p(rho, e, P):
-    r = jnp.where(rho > 0, rho / P["eos.rho0"], jnp.nan)
-    return P["eos.rho0"] * P["eos.c0"] ** 2 / P["eos.gamma"] * (r ** P["eos.gamma"] - 1.0) + P["eos.p0"]
+    # in float64 whatever the state's precision: (rho/rho0)^gamma - 1 is a small difference of
+    # numbers near 1 (1e-4 at Mach 0.1), which float32 would keep to three digits
+    wide = lambda a: jnp.asarray(a, jnp.float64)
+    r = jnp.where(rho > 0, wide(rho) / wide(P["eos.rho0"]), jnp.nan)
+    p = wide(P["eos.rho0"]) * wide(P["eos.c0"]) ** 2 / wide(P["eos.gamma"]) * (r ** wide(P["eos.gamma"]) - 1.0) \
+        + wide(P["eos.p0"])
+    return p.astype(jnp.result_type(rho))
 
 
 def _tait_c(rho, p, P):

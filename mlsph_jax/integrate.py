@@ -26,7 +26,7 @@ from .eos import get_eos, to_primitive
 from .kernels import safe_norm
 from .rhs import Geometry, frame_velocity, geometry, rhs
 from .scheme import Scheme
-from .state import Domain, Kind, Params, Particles
+from .state import Domain, Kind, Params, Particles, tiny
 from .status import Status, combine, state_status
 
 __all__ = ["MOOD_STATS", "Carry", "Status", "StepControl", "cfl_dt", "cfl_limiting_particle", "initial_carry",
@@ -67,13 +67,13 @@ def cfl_dt(particles: Particles, params: Params, scheme: Scheme, cfl: float, cfl
     if scheme.viscous or scheme.heat_conduction:
         rho = particles.q[:, 0] / particles.vol
         dx2 = particles.vol ** (2.0 / particles.dim)
-        diff = jnp.zeros(())
+        diff = jnp.zeros((), particles.q.dtype)
         if scheme.viscous:
             diff = diff + params["physics.mu"]
         if scheme.heat_conduction and "physics.kappa" in params:
             diff = jnp.maximum(diff, params["physics.kappa"])
         fluid = particles.kind == Kind.FLUID
-        dtv = jnp.min(jnp.where(fluid, rho * dx2, jnp.inf)) / jnp.maximum(diff, 1e-300)
+        dtv = jnp.min(jnp.where(fluid, rho * dx2, jnp.inf)) / jnp.maximum(diff, tiny(diff.dtype))
         dt = jnp.minimum(dt, cfl_viscous * dtv)
     return dt
 
@@ -98,8 +98,10 @@ def _euler(z, dt, dz):
     particles keep their state bit for bit (frozen/boundary particles are never updated)."""
     dx, dvol, dq = dz
     f1 = (z.kind == Kind.FLUID)[:, None]
-    return z.replace(x=jnp.where(f1, z.x + dt * dx, z.x), vol=jnp.where(f1[:, 0], z.vol + dt * dvol, z.vol),
-                     q=jnp.where(f1, z.q + dt * dq, z.q))
+    # (a float32 state stays float32 where a term was computed wider; no-op in float64)
+    return z.replace(x=jnp.where(f1, z.x + dt * dx, z.x).astype(z.x.dtype),
+                     vol=jnp.where(f1[:, 0], z.vol + dt * dvol, z.vol).astype(z.vol.dtype),
+                     q=jnp.where(f1, z.q + dt * dq, z.q).astype(z.q.dtype))
 
 
 def _combine(a, y, b, e):
@@ -155,6 +157,7 @@ def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, boun
     and after the step.
     """
     limiter = scheme.component("limiter")
+    dt = jnp.asarray(dt, p.q.dtype)  # the state's precision (run.precision); the time itself stays float64
 
     def stage(carry, ab):
         z, overflow, ppd_min, n_evals, unresolved, unres_particle = carry
@@ -175,7 +178,7 @@ def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, boun
         cand = _combine(a, p, b, e)
         return (cand, overflow | overflow_bits(geom), ppd_min, n_evals, unresolved, unres_particle), None
 
-    coeffs = (jnp.asarray(SSP_RK3_A), jnp.asarray(SSP_RK3_B))
+    coeffs = (jnp.asarray(SSP_RK3_A, p.q.dtype), jnp.asarray(SSP_RK3_B, p.q.dtype))
     ppd_start = jnp.full_like(p.ppd, scheme.reconstruction_degree) if limiter.needs_high_order else p.ppd
     zero = jnp.asarray(0, jnp.int32)
     init = (p, zero, ppd_start, zero, zero, jnp.asarray(-1, jnp.int32))
@@ -238,14 +241,20 @@ def step_status(p: Particles, newp: Particles, params: Params, scheme: Scheme, d
 FIXED_DT_SLACK = 2.0
 
 
-def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: int, nspec=None, boundary=None):
+def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: int, nspec=None, boundary=None,
+               sharding=None):
     """Build ``chunk(carry, params, static_geom, t_stop) -> carry`` running ``n_steps`` steps.
 
     For Eulerian schemes pass the precomputed Geometry as ``static_geom``; for moving particles
-    pass ``None`` and a neighbour spec ``nspec`` (lists rebuilt every stage).
+    pass ``None`` and a neighbour spec ``nspec`` (lists rebuilt every stage).  ``sharding`` (a
+    :class:`mlsph_jax.sharding.ParticleSharding`, multi-device runs) pins the layout of the
+    carry and the geometry to the particle-axis sharding at entry and exit; the partitioner
+    does the rest.
     """
 
     def chunk(carry: Carry, params: Params, static_geom, t_stop):
+        if sharding is not None:
+            carry, static_geom = sharding.constrain((carry, static_geom))
         geom_fn = (lambda p: static_geom) if not scheme.moving else make_stage_geometry(scheme, domain, nspec)
 
         def one(c: Carry, _):
@@ -273,7 +282,7 @@ def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: in
             return jax.lax.cond(active, advance, lambda c: c, c), None
 
         out, _ = jax.lax.scan(one, carry, None, length=n_steps)
-        return out
+        return out if sharding is None else sharding.constrain(out)
 
     return jax.jit(chunk)
 

@@ -120,10 +120,12 @@ class RunSetup:
         return new, integrate.static_geometry(particles, nl, self.scheme, self.domain)
 
     # --- compilation ------------------------------------------------------------------------
-    def make_chunk(self, control: integrate.StepControl, n_steps: int):
-        """Jitted ``chunk(carry, params, static_geom, t_stop)`` of :func:`mlsph_jax.integrate.make_chunk`."""
+    def make_chunk(self, control: integrate.StepControl, n_steps: int, sharding=None):
+        """Jitted ``chunk(carry, params, static_geom, t_stop)`` of :func:`mlsph_jax.integrate.make_chunk`
+        (``sharding``: the :class:`mlsph_jax.sharding.ParticleSharding` of a multi-device run)."""
         return integrate.make_chunk(self.scheme, self.domain, control, n_steps,
-                                    nspec=self.nspec if self.moving else None, boundary=self.boundary)
+                                    nspec=self.nspec if self.moving else None, boundary=self.boundary,
+                                    sharding=sharding)
 
     # --- regrowth -----------------------------------------------------------------------------
     def regrow(self, particles: Particles, status) -> RunSetup:

@@ -20,6 +20,7 @@ import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -29,7 +30,8 @@ from .errors import NeighborOverflowError, SimulationError
 from .integrate import MOOD_STATS, Carry, StepControl, initial_carry
 from .run import RunSetup, setup_run
 from .scheme import Scheme
-from .state import Domain, Kind, Params, Particles
+from .sharding import particle_sharding
+from .state import Domain, Kind, Params, Particles, with_precision
 from .status import Status
 from .status import failure as status_failure
 
@@ -96,8 +98,16 @@ class Simulation:
 
     def __init__(self, problem: Problem, *, cfl: float = 0.3, dt: float = 0.0, chunk: int = 50,
                  max_steps: int = 1_000_000, dt_min: float = 1e-14, headroom: float = 1.3,
-                 cfl_viscous: float = 0.125):
+                 cfl_viscous: float = 0.125, devices: int = 1, precision: str = "float64"):
+        #: precision of the state, parameters and geometry (``run.precision``): the problem is
+        #: cast once here, so the chunk traces (and the result holds) that precision
+        self.precision = precision
+        problem = dataclasses.replace(problem, particles=with_precision(problem.particles, precision),
+                                      params=with_precision(problem.params, precision))
         self.problem = problem
+        #: particle-axis sharding over ``devices`` devices (``None``: one device; see
+        #: :mod:`mlsph_jax.sharding`, the ``run.devices`` setting)
+        self.sharding = particle_sharding(devices, problem.particles.n)
         self.control = StepControl(cfl=cfl, cfl_viscous=cfl_viscous, dt_fixed=dt, dt_min=dt_min * problem.t_end)
         self.chunk_steps = int(chunk)
         self.max_steps = int(max_steps)
@@ -117,21 +127,31 @@ class Simulation:
         return self.setup.nl
 
     def _build(self):
-        self._chunk = self.setup.make_chunk(self.control, self.chunk_steps)
+        self._chunk = self.setup.make_chunk(self.control, self.chunk_steps, sharding=self.sharding)
         self._compiled = None
 
     def _geom(self, p: Particles):
-        self.setup, geom = self.setup.host_geometry(p)
-        return geom
+        self.setup, geom = self.setup.host_geometry(self._host(p))
+        return self._place(geom)
+
+    def _place(self, tree):
+        """``tree`` on the run's devices (sharded over the particle axis on several)."""
+        return tree if self.sharding is None else self.sharding.place(tree)
+
+    def _host(self, p):
+        """``p`` as ordinary single-device arrays for the host-side work between chunks
+        (snapshots, diagnostics, regrowth); every process gathers the whole state."""
+        return p if self.sharding is None else self.sharding.gather(p)
 
     def run(self, out_dir: str | Path | None = None, snapshots: int = 10, progress: bool = True,
             plots: bool = True) -> Result:
         pb = self.problem
-        out = Path(out_dir) if out_dir is not None else None
+        # several processes (jax.distributed): every process runs the same loop, process 0 writes
+        out = Path(out_dir) if out_dir is not None and jax.process_index() == 0 else None
         writer = io.SnapshotWriter(out, pb.particles.dim) if out is not None else None
         if out is not None and pb.config is not None:
             io.write_config(out, pb.config)
-        carry = initial_carry(pb.particles)
+        carry = self._place(initial_carry(pb.particles))
         totals0 = conserved_totals(pb.particles)
         if writer:
             writer.write(0.0, snapshot_fields(pb.particles, pb.params, pb.scheme), attrs={"step": 0})
@@ -145,7 +165,9 @@ class Simulation:
 
         t_wall0 = time.perf_counter()
         geom = self._geom(carry.particles)
-        compile_time = 0.0
+        params = self._place(pb.params)
+        compile_time = chunk_time = 0.0
+        memory = {}
         bar = _progress(pb.t_end, progress)
         status, failure = "ok", None
         try:
@@ -153,15 +175,19 @@ class Simulation:
                 while True:
                     if self._compiled is None:
                         tc = time.perf_counter()
-                        self._compiled = self._chunk.lower(carry, pb.params, geom, jnp.asarray(target)).compile()
+                        tgt = self._place(jnp.asarray(target))
+                        self._compiled = self._chunk.lower(carry, params, geom, tgt).compile()
                         compile_time += time.perf_counter() - tc
-                    carry = self._compiled(carry, pb.params, geom, jnp.asarray(target))
+                        memory = _chunk_memory(self._compiled)
+                    tc = time.perf_counter()
+                    carry = self._compiled(carry, params, geom, self._place(jnp.asarray(target)))
                     st = Status(int(carry.status))  # one host sync per chunk
+                    chunk_time += time.perf_counter() - tc
                     t = float(carry.t)
                     bar.update(t, int(carry.step))
                     if st & Status.NEIGHBOR_OVERFLOW:  # (other bits may be its consequences)
                         try:
-                            self._regrow(carry, st)
+                            self._regrow(dataclasses.replace(carry, particles=self._host(carry.particles)), st)
                         except NeighborOverflowError as e:
                             failure = e
                             break
@@ -170,7 +196,7 @@ class Simulation:
                         geom = self._geom(carry.particles)
                         continue
                     if st != Status.OK:
-                        failure = self._failure(st, carry)
+                        failure = self._failure(st, dataclasses.replace(carry, particles=self._host(carry.particles)))
                         break
                     if int(carry.step) >= self.max_steps and t < pb.t_end:
                         failure = SimulationError(
@@ -182,14 +208,15 @@ class Simulation:
                 if failure is not None:
                     status = "failed: " + str(failure)
                     break
+                host = self._host(carry.particles)
                 if writer:
-                    writer.write(float(carry.t), snapshot_fields(carry.particles, pb.params, pb.scheme),
+                    writer.write(float(carry.t), snapshot_fields(host, pb.params, pb.scheme),
                                  attrs={"step": int(carry.step)})
                 t = float(carry.t)
                 if pb.diagnostics is not None:
-                    series.append({"t": t, **pb.diagnostics(carry.particles, t, pb.params)})
+                    series.append({"t": t, **pb.diagnostics(host, t, pb.params)})
                 if pb.steady_tol > 0:
-                    vel = _velocity(carry.particles)
+                    vel = _velocity(host)
                     scale = max(float(np.abs(vel).max()), 1e-300)
                     rate = float(np.abs(vel - vel_prev).max()) / scale / max(t - t_prev, 1e-300)
                     vel_prev, t_prev = vel, t
@@ -200,10 +227,10 @@ class Simulation:
         finally:
             bar.close()
         wall = time.perf_counter() - t_wall0
+        final = self._host(carry.particles)
         if failure is not None and writer:  # the carry holds the last good state
-            writer.write(float(carry.t), snapshot_fields(carry.particles, pb.params, pb.scheme),
+            writer.write(float(carry.t), snapshot_fields(final, pb.params, pb.scheme),
                          attrs={"step": int(carry.step)})
-        final = carry.particles
         metrics = dict(pb.metrics(final, float(carry.t), pb.params)) if (pb.metrics and failure is None) else {}
         summary = io.make_summary(
             case=pb.case, scheme=dataclasses.asdict(pb.scheme), n_particles=int(final.n),
@@ -211,6 +238,8 @@ class Simulation:
             status=status, metrics=metrics, conservation=_conservation(totals0, conserved_totals(final), final),
             dt_last=float(carry.dt_last),
             particle_updates_per_s=float(int(final.n) * int(carry.step) / max(wall - compile_time, 1e-12)),
+            devices=1 if self.sharding is None else self.sharding.devices, chunk_memory_bytes=memory,
+            chunk_time_s=chunk_time, precision=self.precision,
         )
         if pb.scheme.component("limiter").summary_key == "mood":
             summary["mood"] = mood_summary(carry)
@@ -256,6 +285,16 @@ class Simulation:
         t = float(carry.t)
         return status_failure(st, step=int(carry.step) + 1, time=t, particle=i, x=x,
                        last_good=f"the last good state (t={t:.6g}) is the final snapshot")
+
+
+def _chunk_memory(compiled) -> dict[str, int]:
+    """XLA's memory analysis of a compiled chunk (bytes per device: arguments, outputs,
+    temporaries), or ``{}`` where the backend gives none."""
+    try:
+        m = compiled.memory_analysis()
+        return {k: int(getattr(m, f"{k}_size_in_bytes")) for k in ("argument", "output", "temp")}
+    except Exception:  # noqa: BLE001 - an optional statistic, not a result
+        return {}
 
 
 def _velocity(p: Particles) -> np.ndarray:
@@ -328,7 +367,8 @@ def run_problem(problem: Problem, cfg: Mapping | None = None, out_dir=None, quie
     sim = Simulation(problem, cfl=tcfg.get("cfl", 0.3), dt=tcfg.get("dt", 0.0), chunk=tcfg.get("chunk", 50),
                      max_steps=tcfg.get("max_steps", 1_000_000), dt_min=tcfg.get("dt_min", 1e-14),
                      headroom=(cfg or {}).get("scheme", {}).get("neighbor_headroom", 1.3),
-                     cfl_viscous=tcfg.get("cfl_viscous", 0.125))
+                     cfl_viscous=tcfg.get("cfl_viscous", 0.125), devices=(cfg or {}).get("run", {}).get("devices", 1),
+                     precision=(cfg or {}).get("run", {}).get("precision", "float64"))
     return sim.run(out_dir, snapshots=ocfg.get("snapshots", 10), progress=ocfg.get("progress", True) and not quiet,
                    plots=ocfg.get("plots", True))
 

@@ -202,6 +202,33 @@ class Domain:
         return any(self.periodic)
 
 
+def tiny(dtype) -> float:
+    """Positive floor of a guarded division in ``dtype``: ``1e-300`` in float64 (the historical
+    guard), the smallest normal number in float32 (where ``1e-300`` is 0)."""
+    return max(1e-300, float(jnp.finfo(dtype).tiny))
+
+
+def with_precision(tree, precision: str, *, name: str = "run.precision"):
+    """``tree`` (particles, parameters, geometry) with every floating array in ``precision``
+    (``"float64"``: unchanged; ``"float32"``: cast); integer and boolean arrays unchanged."""
+    if precision not in PRECISIONS:
+        raise InputError(f"invalid {name}={precision!r}; allowed: one of {', '.join(map(repr, PRECISIONS))}")
+    if precision == "float64":
+        return tree
+    dt = jnp.dtype(precision)
+
+    def cast(a):
+        if isinstance(a, jax.Array | np.ndarray) and jnp.issubdtype(a.dtype, jnp.floating):
+            return jnp.asarray(a, dt)
+        return a
+
+    return jax.tree_util.tree_map(cast, tree)
+
+
+#: Allowed values of ``run.precision`` (the precision of the state; float64 is the default).
+PRECISIONS = ("float64", "float32")
+
+
 def minimum_image(dx: jax.Array, box_length: jax.Array | None, periodic: jax.Array | None) -> jax.Array:
     """Wrap separation vectors ``dx[..., d]`` to the nearest periodic image on periodic axes."""
     if box_length is None or periodic is None:

@@ -88,7 +88,7 @@ def viscous_terms(prim, geom, scheme, params, degree: int):
     dP = basis.gradient(xi, degree) / h[..., None]                   # [N, K, m, d]
     val = jnp.einsum("nkm,nmc->nkc", P, a)
     grad = jnp.einsum("nkmd,nmc->nkcd", dP, a)                       # [N, K, nc, d]
-    dP0 = jnp.asarray(basis.gradient_at_origin(degree, d)) / geom.h[:, None, None]   # [N, m, d]
+    dP0 = jnp.asarray(basis.gradient_at_origin(degree, d), geom.h.dtype) / geom.h[:, None, None]   # [N, m, d]
     grad0 = jnp.einsum("nmd,nmc->ncd", dP0, a)                       # [N, nc, d]
     mu = params["physics.mu"] if scheme.viscous else 0.0
     kappa = params["physics.kappa"] if heat else 0.0

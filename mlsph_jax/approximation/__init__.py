@@ -36,7 +36,7 @@ import jax.numpy as jnp
 from ..errors import InputError
 from ..kernels import get_kernel
 from ..registry import Registry
-from ..state import minimum_image
+from ..state import minimum_image, tiny
 from . import basis, mls
 
 APPROXIMATIONS: Registry = Registry("scheme.approximation", protocol=("build", "basis_degree", "has_coeffs"),
@@ -234,7 +234,7 @@ def _kernel_operators(dx, h, vol, idx, mask, spec: ApproxSpec, corrected: bool) 
     d = dx.shape[2]
     det = jnp.linalg.det(E)
     scale = jnp.prod(jnp.abs(jnp.diagonal(E, axis1=1, axis2=2)), axis=1)
-    good = jax.lax.stop_gradient(jnp.abs(det) > 1e-8 * jnp.maximum(scale, 1e-300))
+    good = jax.lax.stop_gradient(jnp.abs(det) > 1e-8 * jnp.maximum(scale, tiny(scale.dtype)))
     Esafe = jnp.where(good[:, None, None], E, jnp.eye(d))
     B = jnp.linalg.inv(Esafe)
     g = jnp.einsum("nab,nkb->nka", B, kgrad)

@@ -75,7 +75,7 @@ def gradient(xi, degree: int):
         de = e.copy()
         coef = de[:, a].astype(np.float64)
         de[:, a] = np.maximum(de[:, a] - 1, 0)
-        grads.append(_monomials(xi, de) * jnp.asarray(coef))
+        grads.append(_monomials(xi, de) * jnp.asarray(coef, xi.dtype))
     return jnp.stack(grads, axis=-1)
 
 

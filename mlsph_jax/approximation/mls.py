@@ -362,6 +362,10 @@ def operators_block(dx, mask, h, *, kernel: Kernel, degree: int, rcond: float, d
     dx[B, K, d] offsets x_k - x_e, mask[B, K], h[B].  Returns values[B, K], gradients[B, K, d],
     coefficients[B, m, K] (or None) and the active degree[B].
     """
+    out_dtype = dx.dtype
+    # moment matrices and their solves in float64 whatever the state's precision (a float32 run,
+    # run.precision): M is ill-conditioned for degree 2-3; outputs return in the input precision
+    dx, h = dx.astype(jnp.float64), h.astype(jnp.float64)
     d = dx.shape[-1]
     mdeg = basis.monomial_degrees(degree, d)
     m = len(mdeg)
@@ -432,5 +436,5 @@ def operators_block(dx, mask, h, *, kernel: Kernel, degree: int, rcond: float, d
             rows = np.flatnonzero(g0[:, al])
             g = C[int(rows[0])] / hb if rows.size else jnp.zeros_like(w)
             grads.append(jnp.where(mask, g, 0.0))
-    coeffs = jnp.stack([jnp.broadcast_to(c, w.shape) for c in C], axis=1) if with_coeffs else None
-    return values, jnp.stack(grads, axis=-1), coeffs, active_degree[:, 0]
+    coeffs = jnp.stack([jnp.broadcast_to(c, w.shape) for c in C], axis=1).astype(out_dtype) if with_coeffs else None
+    return values.astype(out_dtype), jnp.stack(grads, axis=-1).astype(out_dtype), coeffs, active_degree[:, 0]

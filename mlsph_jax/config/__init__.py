@@ -1,7 +1,7 @@
 """Schema-validated TOML configurations.
 
 A config is a TOML file with the tables ``[case]``, ``[scheme]``, ``[eos]``, ``[physics]``,
-``[time]`` and ``[output]``.  Every key is described by a :class:`~mlsph_jax.schema.Key`: its
+``[time]``, ``[output]`` and ``[run]``.  Every key is described by a :class:`~mlsph_jax.schema.Key`: its
 type, default (or :data:`REQUIRED`), allowed values or range, unit and a one-line doc.
 :func:`load` reads a file, applies ``--set`` style overrides, fills every default and validates
 everything; the result is a plain nested ``dict`` holding every table and every key.
@@ -11,7 +11,7 @@ everything; the result is a plain nested ``dict`` holding every table and every 
   change the defaults of the other tables, cross-checks keys and fixes the space dimension.
 * ``[eos]`` — ``kind`` selects the EOS; its keys are :data:`EOS_SCHEMAS` (built-in EOS) or derived
   from the registered EOS (:func:`eos_keys`).
-* ``[scheme]``, ``[time]``, ``[output]``, ``[physics]`` — :data:`SCHEMA_COMMON`.
+* ``[scheme]``, ``[time]``, ``[output]``, ``[physics]``, ``[run]`` — :data:`SCHEMA_COMMON`.
 
 An unknown table or key, a wrong type or an out-of-range value raises
 :class:`~mlsph_jax.errors.ConfigError` naming the dotted key, the value given and what is

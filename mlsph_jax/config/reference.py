@@ -46,7 +46,7 @@ def config_reference_markdown() -> str:
         *_RULES,
         "",
     ]
-    for table in ("scheme", "time", "output", "physics"):
+    for table in ("scheme", "time", "output", "physics", "run"):
         out += [f"## `[{table}]`", "", TABLE_DOCS[table], "", *markdown_rows(table, SCHEMA_COMMON[table]), ""]
     out += ["## `[eos]`", "", TABLE_DOCS["eos"], "", *markdown_rows("eos", {"kind": EOS_KIND}), ""]
     for kind, keys in all_eos_keys().items():

@@ -16,11 +16,11 @@ from collections.abc import Mapping
 from ..registry import names_of, registry
 from ..schema import REQUIRED, Key
 
-__all__ = ["CASE_NAME", "EOS_KIND", "EOS_SCHEMAS", "OUTPUT_KEYS", "PHYSICS_KEYS", "SCHEMA_COMMON", "SCHEME_KEYS",
-           "TABLES", "TABLE_DOCS", "TIME_KEYS", "all_eos_keys", "effective_beta", "eos_keys"]
+__all__ = ["CASE_NAME", "EOS_KIND", "EOS_SCHEMAS", "OUTPUT_KEYS", "PHYSICS_KEYS", "RUN_KEYS", "SCHEMA_COMMON",
+           "SCHEME_KEYS", "TABLES", "TABLE_DOCS", "TIME_KEYS", "all_eos_keys", "effective_beta", "eos_keys"]
 
 #: The tables of a config, in the order a resolved config holds them.
-TABLES = ("case", "scheme", "eos", "physics", "time", "output")
+TABLES = ("case", "scheme", "eos", "physics", "time", "output", "run")
 
 TABLE_DOCS = {
     "case": "The test case: `name` selects the case; its other keys depend on the case.",
@@ -29,6 +29,8 @@ TABLE_DOCS = {
     "physics": "Physical parameters shared by all cases.",
     "time": "Time integration (SSP-RK3) and time-step control.",
     "output": "What the run writes (snapshots, plots) and shows (progress).",
+    "run": "Where the run executes: devices (sharding over the particle axis); no effect on the numbers "
+           "beyond round-off.",
 }
 
 #: ``[scheme]``: the numerical method.
@@ -175,6 +177,20 @@ OUTPUT_KEYS: dict[str, Key] = {
 }
 
 
+#: ``[run]``: execution (devices); docs/performance.md.
+RUN_KEYS: dict[str, Key] = {
+    "devices": Key(int, 1, minimum=0, note="0 = every available device",
+                   doc="devices the particle state is sharded over (jax.sharding, 1-D mesh on the particle "
+                       "axis, mlsph_jax.sharding); must divide the particle count and not exceed "
+                       "len(jax.devices()) (host devices: XLA_FLAGS=--xla_force_host_platform_device_count=N; "
+                       "several hosts: jax.distributed.initialize)"),
+    "precision": Key(str, "float64", choices=("float64", "float32"),
+                     doc="floating-point precision of the particle state, the parameters and the geometry; "
+                         "float32 keeps the MLS moment matrices and their solves and the Tait pressure in "
+                         "float64 (docs/performance.md: its accuracy and speed)"),
+}
+
+
 #: ``[physics]``: physical parameters shared by all cases.
 PHYSICS_KEYS: dict[str, Key] = {
     "mu": Key(float, 0.0, minimum=0.0, unit="Pa s",
@@ -222,7 +238,7 @@ CASE_NAME = Key(str, REQUIRED, choices=names_of("case.name"),
 
 #: The tables that do not depend on the case or the EOS.
 SCHEMA_COMMON: dict[str, dict[str, Key]] = {
-    "scheme": SCHEME_KEYS, "time": TIME_KEYS, "output": OUTPUT_KEYS, "physics": PHYSICS_KEYS}
+    "scheme": SCHEME_KEYS, "time": TIME_KEYS, "output": OUTPUT_KEYS, "physics": PHYSICS_KEYS, "run": RUN_KEYS}
 
 
 def eos_keys(kind: str) -> dict[str, Key]:

@@ -1,0 +1,115 @@
+"""Where a Taylor-Green step spends its time: right-hand side, geometry, neighbour search and
+the rest of the SSP-RK3 step, each compiled and timed on its own.
+
+``taylor_green_2d`` (n x n, Re = 100, MLSPH-ALE degree 2, quadratic reconstruction) in the frames
+of ``--frames``.  Timed (median of ``--repeat`` runs, each ahead-of-time compiled, jitted
+functions of the public API):
+
+* ``neighbors``: :func:`mlsph_jax.neighbors.update` (the list a moving run rebuilds per stage);
+* ``geometry``:  :func:`mlsph_jax.rhs.geometry` (MLS area vectors and shape functions);
+* ``rhs``:       :func:`mlsph_jax.rhs.rhs` with that geometry;
+* ``step``:      :func:`mlsph_jax.integrate.ssp_rk3_step` (three stages; for moving particles
+  each stage rebuilds the list and the geometry, :func:`mlsph_jax.integrate.make_stage_geometry`);
+* ``rest`` = step - 3 rhs (Eulerian) or step - 3 (neighbors + geometry + rhs) (moving): the
+  Shu-Osher combinations, limiter plumbing, frame velocity outside the right-hand side.
+
+``--trace DIR`` also records a :mod:`jax.profiler` trace of five steps (open it with
+TensorBoard's profile plugin or Perfetto).
+
+    python experiments/profile_step.py --n 100 --frames eulerian ale_shift [--trace /tmp/trace]
+
+Writes experiments/output/profile_step.json.  Not a test.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from mlsph_jax import config
+from mlsph_jax import neighbors as nb
+from mlsph_jax.cases import build_problem
+from mlsph_jax.integrate import make_stage_geometry, ssp_rk3_step
+from mlsph_jax.rhs import geometry, rhs
+from mlsph_jax.run import setup_run, smoothing_lengths
+
+OUT = Path(__file__).resolve().parents[1] / "experiments" / "output" / "profile_step.json"
+
+BASE = '[case]\nname = "taylor_green_2d"\nre = 100.0\n[output]\nplots = false\nprogress = false\n'
+
+
+def timed(f, *args, repeat: int) -> tuple[float, float]:
+    """(compile seconds, median run seconds) of ``jax.jit(f)`` on ``args``."""
+    t0 = time.perf_counter()
+    c = jax.jit(f).lower(*args).compile()
+    comp = time.perf_counter() - t0
+    jax.block_until_ready(c(*args))
+    runs = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        jax.block_until_ready(c(*args))
+        runs.append(time.perf_counter() - t0)
+    return comp, statistics.median(runs)
+
+
+def profile(n: int, frame: str, repeat: int, trace: str | None) -> dict:
+    cfg = config.loads(BASE, [f"case.n={n}", f"scheme.frame={frame}", "time.t_end=0.01"])
+    pb = build_problem(cfg)
+    sc, dom, p, prm = pb.scheme, pb.domain, pb.particles, pb.params
+    setup = setup_run(pb, headroom=cfg["scheme"]["neighbor_headroom"], min_moving_headroom=True)
+    h = jax.numpy.asarray(smoothing_lengths(p, sc))
+    dt = 0.3 * (1.0 / n) / 11.0
+    out = {"n": n, "particles": int(p.n), "frame": frame, "capacity": setup.nspec.capacity}
+    _, out["neighbors_s"] = timed(lambda x, h: nb.update(x, h, setup.nspec), p.x, h, repeat=repeat)
+    _, out["geometry_s"] = timed(lambda x, v, nl: geometry(x, v, nl, sc, dom), p.x, p.vol, setup.nl, repeat=repeat)
+    g = jax.jit(lambda x, v, nl: geometry(x, v, nl, sc, dom))(p.x, p.vol, setup.nl)
+    _, out["rhs_s"] = timed(lambda p, prm, g: rhs(p, prm, g, sc), p, prm, g, repeat=repeat)
+    geom_fn = make_stage_geometry(sc, dom, setup.nspec) if sc.moving else None
+
+    def step(p, prm, g):
+        return ssp_rk3_step(p, prm, dt, sc, geom_fn if sc.moving else (lambda z: g))[0]
+
+    out["step_compile_s"], out["step_s"] = timed(step, p, prm, g, repeat=repeat)
+    per_stage = out["rhs_s"] + (out["neighbors_s"] + out["geometry_s"] if sc.moving else 0.0)
+    out["rest_s"] = out["step_s"] - 3 * per_stage
+    out["particle_steps_per_s"] = p.n / out["step_s"]
+    if trace:
+        c = jax.jit(step).lower(p, prm, g).compile()
+        with jax.profiler.trace(str(Path(trace) / f"{frame}_{n}")):
+            for _ in range(5):
+                q = c(p, prm, g)
+            jax.block_until_ready(q)
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--n", type=int, default=100)
+    ap.add_argument("--frames", nargs="+", default=["eulerian", "ale_shift"])
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--trace", default=None, help="folder for a jax.profiler trace of five steps")
+    a = ap.parse_args(argv)
+    rows = []
+    for frame in a.frames:
+        r = profile(a.n, frame, a.repeat, a.trace)
+        rows.append(r)
+        ms = {k: 1e3 * r[k] for k in ("neighbors_s", "geometry_s", "rhs_s", "step_s", "rest_s")}
+        print(f"{frame:>9s} N={r['particles']}: step {ms['step_s']:.1f} ms = 3 x (rhs {ms['rhs_s']:.1f}"
+              + (f" + neighbours {ms['neighbors_s']:.1f} + geometry {ms['geometry_s']:.1f}" if frame != "eulerian"
+                 else "") + f") + rest {ms['rest_s']:.1f} ms; (geometry alone {ms['geometry_s']:.1f} ms, "
+              f"neighbours alone {ms['neighbors_s']:.1f} ms); {r['particle_steps_per_s']:.3e} particle-steps/s",
+              flush=True)
+    OUT.parent.mkdir(parents=True, exist_ok=True)
+    OUT.write_text(json.dumps({"rows": rows, "load_average": list(np.round(__import__("os").getloadavg(), 2))},
+                              indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
