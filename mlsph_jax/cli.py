@@ -1,6 +1,6 @@
 """The ``mlsph`` command line (a stable contract; documented in README and docs/config.md).
 
-    mlsph run [CONFIG] [--out DIR] [--set KEY=VALUE ...] [--quiet]
+    mlsph run [CONFIG] [--out DIR | --restart DIR] [--overwrite] [--set KEY=VALUE ...] [--quiet]
     mlsph validate CONFIG [--set KEY=VALUE ...]
     mlsph cases
     mlsph sensitivity CONFIG --wrt KEY [KEY ...] --of METRIC [--check-fd] [--out DIR] [--set ...]
@@ -9,7 +9,10 @@
 
 ``run`` without CONFIG runs the default case (Sod's shock tube, 200 particles, under a minute on
 2 cores).  Exit codes: 0 success, 1 the simulation failed (NaN, negative density, ...; the last
-good snapshot is on disk), 2 bad configuration or arguments.
+good snapshot is on disk), 2 bad configuration or arguments (also: an output folder that already
+holds a run, without --overwrite or --restart), 130 interrupted by Ctrl-C or SIGTERM (the last
+good state, summary.json with status "interrupted", timeseries.csv and the plots are written;
+continue with --restart DIR).
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ import time
 from pathlib import Path
 
 from . import __version__
-from .errors import ConfigError, InputError, MLSPHError, SimulationError
+from .errors import ConfigError, InputError, MLSPHError, RunInterrupted, SimulationError
 
 DEFAULT_CONFIG = """\
 # Default case of `mlsph run`: Sod's shock tube (ideal gas), first-order MLSPH-ALE.
@@ -63,6 +66,11 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", action="extend",
                    help="override config keys, e.g. --set case.n=400 scheme.reconstruction_degree=1")
     r.add_argument("--quiet", action="store_true", help="no progress bar and no result paragraph")
+    r.add_argument("--overwrite", action="store_true",
+                   help="replace the run already in the output folder (its old files and plots are removed)")
+    r.add_argument("--restart", metavar="DIR",
+                   help="continue the interrupted or failed run in DIR from its last checkpoint (bit for bit as if "
+                        "it had not stopped); CONFIG is optional (default DIR/config.toml) and must match the run")
     v = sub.add_parser("validate", parents=[plug], help="check a config without running it")
     v.add_argument("config")
     v.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", action="extend")
@@ -109,21 +117,37 @@ def cmd_run(args) -> int:
     from .cases import build_problem
     from .simulation import run_problem
 
-    cfg, stem = _load(args.config, args.set)
-    out = Path(args.out) if args.out else Path("out") / stem
+    if args.restart is not None:
+        if args.overwrite:
+            raise InputError(f"invalid --overwrite with --restart {args.restart}: overwriting deletes the run a "
+                             "restart continues; allowed: one of them")
+        if args.out is not None and Path(args.out).resolve() != Path(args.restart).resolve():
+            raise InputError(f"invalid --out {args.out} with --restart {args.restart}: a restart writes into the "
+                             "folder it continues; allowed: --restart DIR alone")
+        from .checkpoint import read_checkpoint
+
+        read_checkpoint(args.restart)   # a missing folder or checkpoint: say so before anything else
+        cfg, stem = _load(args.config or str(Path(args.restart) / "config.toml"), args.set)
+        out = Path(args.restart)
+    else:
+        cfg, stem = _load(args.config, args.set)
+        out = Path(args.out) if args.out else Path("out") / stem
     problem = build_problem(cfg)
-    t0 = time.perf_counter()
     try:
-        result = run_problem(problem, cfg, out_dir=out, quiet=args.quiet)
+        result = run_problem(problem, cfg, out_dir=out, quiet=args.quiet, overwrite=args.overwrite,
+                             restart=args.restart is not None)
     except SimulationError as e:
         print(f"mlsph: {e}\nmlsph: outputs (with the last good snapshot) are in {out}", file=sys.stderr)
         return 1
+    except RunInterrupted as e:
+        print(f"mlsph: {e}", file=sys.stderr)
+        return 130
     s = result.summary
     if not args.quiet:
         m = ", ".join(f"{k} = {v:.4g}" for k, v in s["metrics"].items())
         c = ", ".join(f"{k} {v:+.2e}" for k, v in s["conservation"].items())
         print(f"{problem.description}: {s['n_particles']} particles advanced to t = {s['t_final']:.6g} in "
-              f"{s['n_steps']} SSP-RK3 steps ({time.perf_counter() - t0:.1f} s wall, "
+              f"{s['n_steps']} SSP-RK3 steps ({s['wall_time_s']:.1f} s wall, "
               f"{s['compile_time_s']:.1f} s compiling, {s['particle_updates_per_s']:.3g} particle-updates/s). "
               f"Errors against the reference: {m or 'none'}. Relative drift of the totals: {c}. "
               f"Outputs (summary.json, fields.h5 + fields.xmf for ParaView, config.toml, PNG plots) in {out}/.")
@@ -251,6 +275,9 @@ def main(argv=None) -> int:
     except MLSPHError as e:
         print(f"mlsph: error: {e}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:   # before or after a run's own interrupt handling (which writes the outputs)
+        print("mlsph: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -239,17 +239,21 @@ FIXED_DT_SLACK = 2.0
 
 
 def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: int, nspec=None, boundary=None):
-    """Build ``chunk(carry, params, static_geom, t_stop) -> carry`` running ``n_steps`` steps.
+    """Build ``chunk(carry, params, static_geom, t_stop, step_stop=None) -> carry`` running ``n_steps``
+    steps (steps once ``carry.t`` reaches ``t_stop`` or ``carry.step`` reaches ``step_stop`` are no-ops:
+    ``time.max_steps`` is exact).
 
     For Eulerian schemes pass the precomputed Geometry as ``static_geom``; for moving particles
     pass ``None`` and a neighbour spec ``nspec`` (lists rebuilt every stage).
     """
 
-    def chunk(carry: Carry, params: Params, static_geom, t_stop):
+    def chunk(carry: Carry, params: Params, static_geom, t_stop, step_stop=None):
         geom_fn = (lambda p: static_geom) if not scheme.moving else make_stage_geometry(scheme, domain, nspec)
 
         def one(c: Carry, _):
             active = (c.status == Status.OK) & (c.t < t_stop)
+            if step_stop is not None:
+                active = active & (c.step < step_stop)
 
             def advance(c: Carry) -> Carry:
                 dt = (jnp.asarray(control.dt_fixed) if control.dt_fixed > 0
