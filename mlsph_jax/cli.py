@@ -3,16 +3,18 @@
     mlsph run [CONFIG] [--out DIR | --restart DIR] [--overwrite] [--set KEY=VALUE ...] [--quiet]
     mlsph validate CONFIG [--set KEY=VALUE ...]
     mlsph cases
+    mlsph init CASE [--out FILE.toml]
     mlsph sensitivity CONFIG --wrt KEY [KEY ...] --of METRIC [--check-fd] [--out DIR] [--set ...]
     mlsph calibrate CONFIG --fit KEY [KEY ...] --target FILE.csv [--steps N] [--lr X] [--out DIR] [--set ...]
     mlsph --version
 
-``run`` without CONFIG runs the default case (Sod's shock tube, 200 particles, under a minute on
-2 cores).  Exit codes: 0 success, 1 the simulation failed (NaN, negative density, ...; the last
-good snapshot is on disk), 2 bad configuration or arguments (also: an output folder that already
-holds a run, without --overwrite or --restart), 130 interrupted by Ctrl-C or SIGTERM (the last
-good state, summary.json with status "interrupted", timeseries.csv and the plots are written;
-continue with --restart DIR).
+CONFIG is a TOML file or the name of a built-in config (``mlsph run couette``, from any folder;
+``mlsph cases`` lists them).  ``run`` without CONFIG runs the default case (Sod's shock tube, 200
+particles, under a minute on 2 cores).  Exit codes: 0 success, 1 the simulation failed (NaN,
+negative density, ...; the last good snapshot is on disk), 2 bad configuration or arguments
+(also: an output folder that already holds a run, without --overwrite or --restart), 130
+interrupted by Ctrl-C or SIGTERM (the last good state, summary.json with status "interrupted",
+timeseries.csv and the plots are written; continue with --restart DIR).
 """
 
 from __future__ import annotations
@@ -61,7 +63,8 @@ def _parser() -> argparse.ArgumentParser:
                       help="import a Python file or module first, e.g. one that registers your own flux, EOS or "
                            "case (docs/extending.md); repeatable")
     r = sub.add_parser("run", parents=[plug], help="run a case from a TOML config (default: Sod's shock tube)")
-    r.add_argument("config", nargs="?", help="TOML config file (omit for the default case)")
+    r.add_argument("config", nargs="?", help="TOML config file or built-in config name, e.g. couette (omit for "
+                                             "the default case; mlsph cases lists the names)")
     r.add_argument("--out", help="output folder (default: out/<config name>)")
     r.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", action="extend",
                    help="override config keys, e.g. --set case.n=400 scheme.reconstruction_degree=1")
@@ -72,11 +75,14 @@ def _parser() -> argparse.ArgumentParser:
                    help="continue the interrupted or failed run in DIR from its last checkpoint (bit for bit as if "
                         "it had not stopped); CONFIG is optional (default DIR/config.toml) and must match the run")
     v = sub.add_parser("validate", parents=[plug], help="check a config without running it")
-    v.add_argument("config")
+    v.add_argument("config", nargs="?", help="TOML config file or built-in config name")
     v.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", action="extend")
     sub.add_parser("cases", parents=[plug], help="list the built-in cases and configs")
+    i = sub.add_parser("init", parents=[plug], help="write a built-in config (or a case's defaults) to a file to edit")
+    i.add_argument("name", metavar="CASE", help="built-in config name (e.g. couette) or case name (mlsph cases)")
+    i.add_argument("--out", help="file to write (default: ./CASE.toml; an existing file is not overwritten)")
     diff_opts = argparse.ArgumentParser(add_help=False, parents=[plug])
-    diff_opts.add_argument("config")
+    diff_opts.add_argument("config", nargs="?", help="TOML config file or built-in config name")
     diff_opts.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", action="extend")
     diff_opts.add_argument("--out", help="output folder (default: out/<config name>_<command>)")
     diff_opts.add_argument("--n-steps", type=int, default=None,
@@ -108,9 +114,26 @@ def _load(path: str | None, overrides):
 
     if path is None:
         return config.loads(DEFAULT_CONFIG, overrides), "default"
-    if not Path(path).is_file():
-        raise ConfigError(f"config file {path!r} does not exist")
-    return config.load(path, overrides), Path(path).stem
+    from .config.builtin import config_path
+
+    file = config_path(path)
+    return config.load(file, overrides), file.stem
+
+
+def _fix_set(args) -> None:
+    """``--set`` takes one or more values, so argparse hands it a config path that follows it
+    (``mlsph validate --set case.n=50 configs/sod.toml``): a value without ``=`` is the CONFIG
+    positional when that is empty; any other is an error naming it."""
+    sets = getattr(args, "set", None)
+    if not sets:
+        return
+    loose = [v for v in sets if "=" not in v]
+    if len(loose) == 1 and getattr(args, "config", None) is None and hasattr(args, "config"):
+        args.config = loose[0]
+        args.set = [v for v in sets if v != loose[0]]
+    elif loose:
+        raise ConfigError(f"invalid --set value {loose[0]!r}; allowed: KEY=VALUE, e.g. case.n=400 (and at most one "
+                          "CONFIG)")
 
 
 def cmd_run(args) -> int:
@@ -154,7 +177,14 @@ def cmd_run(args) -> int:
     return 0
 
 
+def _need_config(args) -> None:
+    if args.config is None:
+        raise ConfigError(f"mlsph {args.command}: missing CONFIG; allowed: a TOML file or a built-in config name "
+                          "(mlsph cases lists them)")
+
+
 def cmd_validate(args) -> int:
+    _need_config(args)
     cfg, _ = _load(args.config, args.set)
     from .cases import build_problem
 
@@ -166,15 +196,41 @@ def cmd_validate(args) -> int:
 
 def cmd_cases(args) -> int:
     from .cases import CASES
+    from .config.builtin import CONFIG_DIR, builtin_configs, describe
 
+    print("cases (case.name):")
     for name, case in CASES.items():
-        print(f"{name}: {case.doc}")
-    cfgs = sorted(Path("configs").glob("*.toml")) if Path("configs").is_dir() else []
-    if cfgs:
-        print("\nconfigs in ./configs:")
-        for c in cfgs:
-            first = next((ln[1:].strip() for ln in c.read_text().splitlines() if ln.startswith("#")), "")
-            print(f"  {c}: {first}")
+        print(f"  {name}: {case.doc}")
+    print("\nbuilt-in configs (mlsph run NAME, mlsph init NAME):")
+    for name in builtin_configs():
+        print(f"  {name}: {describe(CONFIG_DIR / f'{name}.toml')}")
+    return 0
+
+
+def cmd_init(args) -> int:
+    from . import config
+    from .config.builtin import CONFIG_DIR, builtin_configs
+
+    out = Path(args.out) if args.out else Path(f"{args.name}.toml")
+    if out.exists():
+        raise InputError(f"invalid --out {str(out)!r}: the file exists; allowed: a new file name (mlsph init does "
+                         "not overwrite)")
+    if args.name in builtin_configs():
+        text = (CONFIG_DIR / f"{args.name}.toml").read_text()
+    elif args.name in config.registered_cases():
+        try:
+            text = f"# Defaults of case {args.name!r} (mlsph init {args.name}); docs/config.md describes every key.\n" \
+                   + config.dumps(config.load(None, case=args.name))
+        except ConfigError:
+            cfgs = [c for c in builtin_configs() if f'name = "{args.name}"' in (CONFIG_DIR / f"{c}.toml").read_text()]
+            raise ConfigError(f"invalid CASE {args.name!r}: the case has required keys without defaults; allowed: "
+                              f"one of its built-in configs ({', '.join(cfgs) or 'none'})") from None
+    else:
+        raise ConfigError(f"invalid CASE {args.name!r}; allowed: a built-in config ({', '.join(builtin_configs())}) "
+                          f"or a case ({', '.join(config.registered_cases())})")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text)
+    print(f"wrote {out}; run it with: mlsph run {out}")
     return 0
 
 
@@ -194,6 +250,7 @@ def cmd_sensitivity(args) -> int:
     from .cases import build_problem
     from .sensitivity import sensitivity
 
+    _need_config(args)
     cfg, stem = _load(args.config, args.set)
     problem = build_problem(cfg)
     t0 = time.perf_counter()
@@ -220,6 +277,7 @@ def cmd_calibrate(args) -> int:
     from .cases import build_problem
     from .sensitivity import calibrate, read_target, write_calibration
 
+    _need_config(args)
     cfg, stem = _load(args.config, args.set)
     problem = build_problem(cfg)
     target = read_target(args.target)
@@ -267,8 +325,9 @@ def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
         load_plugins(getattr(args, "plugin", []))
-        return {"run": cmd_run, "validate": cmd_validate, "cases": cmd_cases, "sensitivity": cmd_sensitivity,
-                "calibrate": cmd_calibrate}[args.command](args)
+        _fix_set(args)
+        return {"run": cmd_run, "validate": cmd_validate, "cases": cmd_cases, "init": cmd_init,
+                "sensitivity": cmd_sensitivity, "calibrate": cmd_calibrate}[args.command](args)
     except (ConfigError, InputError) as e:
         print(f"mlsph: error: {e}", file=sys.stderr)
         return 2
