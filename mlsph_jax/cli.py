@@ -165,16 +165,28 @@ def cmd_run(args) -> int:
     except RunInterrupted as e:
         print(f"mlsph: {e}", file=sys.stderr)
         return 130
-    s = result.summary
     if not args.quiet:
-        m = ", ".join(f"{k} = {v:.4g}" for k, v in s["metrics"].items())
-        c = ", ".join(f"{k} {v:+.2e}" for k, v in s["conservation"].items())
-        print(f"{problem.description}: {s['n_particles']} particles advanced to t = {s['t_final']:.6g} in "
-              f"{s['n_steps']} SSP-RK3 steps ({s['wall_time_s']:.1f} s wall, "
-              f"{s['compile_time_s']:.1f} s compiling, {s['particle_updates_per_s']:.3g} particle-updates/s). "
-              f"Errors against the reference: {m or 'none'}. Relative drift of the totals: {c}. "
-              f"Outputs (summary.json, fields.h5 + fields.xmf for ParaView, config.toml, PNG plots) in {out}/.")
+        print(result_paragraph(problem.description, result.summary, out))
     return 0
+
+
+def result_paragraph(description: str, s: dict, out) -> str:
+    """The one-paragraph result of ``mlsph run`` (every number as in summary.json)."""
+    from .simulation import split_metrics
+
+    errors, others = split_metrics(s["metrics"])
+    fmt = lambda d: ", ".join(f"{k} = {v:.4g}" for k, v in d.items())
+    info = s.get("conservation_info", {"label": "drift"})
+    c = ", ".join(f"{k} {v:+.2e}" for k, v in s["conservation"].items())
+    what = ("Relative drift of the totals (closed domain: round-off expected)" if info["label"] == "drift"
+            else f"Relative {info['label']} of the totals (not errors; scales in summary.json)")
+    return (f"{description}: {s['n_particles']} particles advanced to t = {s['t_final']:.6g} in "
+            f"{s['n_steps']} SSP-RK3 steps ({s['wall_time_s']:.1f} s wall, "
+            f"{s['compile_time_s']:.1f} s compiling, {s['particle_updates_per_s']:.3g} particle-updates/s). "
+            f"Errors against the reference: {fmt(errors) or 'none'}."
+            + (f" Other results: {fmt(others)}." if others else "")
+            + f" {what}: {c}. "
+            f"Outputs (summary.json, fields.h5 + fields.xmf for ParaView, config.toml, PNG plots) in {out}/.")
 
 
 def _need_config(args) -> None:
