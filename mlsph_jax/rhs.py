@@ -121,8 +121,11 @@ def _cols(a):
     return [a[..., k] for k in range(a.shape[-1])]
 
 
-def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme):
-    """Time derivatives ``(dx/dt, dV/dt, d(VU)/dt)`` for the given geometry (pure, jit-able)."""
+def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme, boundary=None):
+    """Time derivatives ``(dx/dt, dV/dt, d(VU)/dt)`` for the given geometry (pure, jit-able).
+
+    ``boundary`` (e.g. :class:`mlsph_jax.boundaries.MirrorWalls`): in moving frames its
+    ``ghost_frame_velocity(w)``, if it has one, gives the ghosts the frame velocity they move with."""
     eos = get_eos(scheme.eos)
     x, vol, q, kind = particles.x, particles.vol, particles.q, particles.kind
     n, d = x.shape
@@ -134,8 +137,10 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme):
     dw = frame.drift(w, geom, kind, scheme, vol)
     if dw is not None:
         w = w + dw
-    jsafe = geom.jsafe
     eulerian = not frame.moving
+    if not eulerian and getattr(boundary, "ghost_frame_velocity", None) is not None:
+        w = boundary.ghost_frame_velocity(w)
+    jsafe = geom.jsafe
     interp = not eulerian and geom.interp is not None
 
     variables = scheme.component("reconstruction_variables")
