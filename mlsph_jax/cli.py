@@ -275,8 +275,10 @@ def cmd_sensitivity(args) -> int:
     for k, e in res["gradients"].items():
         line = f"  d {args.of} / d {k} = {e['gradient']}"
         if args.check_fd:
-            line += (f"   (finite differences {e['fd']}, step {e['fd_step']}, "
-                     f"relative disagreement {e['rel_disagreement']})")
+            line += (f"   (finite differences {e['fd']}, step {e['fd_step']}): AD and FD {e['verdict'].upper()}, "
+                     f"relative difference {e['rel_difference']:.1e}")
+            if e["hint"]:
+                line += f"\n    hint: {e['hint']}"
         print(line)
     out = Path(args.out) if args.out else Path("out") / f"{stem}_sensitivity"
     out.mkdir(parents=True, exist_ok=True)

@@ -130,8 +130,62 @@ def sensitivity(problem, wrt: Sequence[str], of: str, check_fd: bool = False, fd
             fd, steps = fd.reshape(base.shape), steps.reshape(base.shape)
             rel = np.abs(gk - fd) / np.maximum(np.maximum(np.abs(gk), np.abs(fd)), 1e-300)
             entry.update(fd=fd.tolist(), fd_step=steps.tolist(), rel_disagreement=rel.tolist())
+            fd10 = None
+            if fd_verdict(gk, fd)["verdict"] != "agree":   # a second step tells a step problem from a derivative one
+                fd10 = np.zeros_like(flat)
+                for i in range(flat.size):
+                    h = 10 * steps.reshape(-1)[i]
+                    up, dn = flat.copy(), flat.copy()
+                    up[i] += h
+                    dn[i] -= h
+                    fd10[i] = (float(fj({**theta, k: jnp.asarray(up.reshape(base.shape))}))
+                               - float(fj({**theta, k: jnp.asarray(dn.reshape(base.shape))}))) / (2 * h)
+                fd10 = fd10.reshape(base.shape)
+                entry["fd_10_step"] = fd10.tolist()
+            entry.update(fd_verdict(gk, fd, fd10, mood=problem.scheme.limiter == "mood"))
         result["gradients"][k] = entry
     return result
+
+
+#: Largest relative AD/FD difference called agreement (central differences at the default
+#: relative step 1e-5 are accurate to ~1e-9 relative for a smooth objective).
+AGREE_TOL = 1e-4
+
+
+def _rel(a: np.ndarray, b: np.ndarray) -> float:
+    """max |a - b| relative to the largest entry of either (per parameter, so that a component
+    that is zero in both is not a 100 % disagreement of round-off)."""
+    return float(np.max(np.abs(a - b)) / max(float(np.max(np.abs(a))), float(np.max(np.abs(b))), 1e-300))
+
+
+def fd_verdict(gradient, fd, fd_10_step=None, *, mood: bool = False) -> dict:
+    """``{"verdict": "agree"|"disagree", "rel_difference": max relative difference, "hint": ...}``
+    of an AD gradient against central finite differences ``fd`` (and, when they disagree, the
+    differences ``fd_10_step`` at a ten times larger step).
+
+    Hints: FD that change with the step point at the FD side (the step crosses a switch: MOOD
+    demotions, a kink such as the |u.n| of a wave speed, a max/min; or is too large / too small
+    for round-off); FD that are stable across steps while AD differs point at the derivative of a
+    non-smooth operation (AD differentiates the branch taken: MOOD's demotion set, |u.n| at 0)."""
+    g, f = np.asarray(gradient, float), np.asarray(fd, float)
+    rel = _rel(g, f)
+    if rel <= AGREE_TOL:
+        return {"verdict": "agree", "rel_difference": rel, "hint": ""}
+    hints = []
+    if fd_10_step is not None:
+        f10 = np.asarray(fd_10_step, float)
+        step_rel = _rel(f10, f)
+        if step_rel > AGREE_TOL:
+            hints.append(f"the finite differences change by {step_rel:.1e} (relative) when the step grows 10x: the "
+                         "objective is not smooth at the step's scale (a kink such as |u.n| in a wave speed, a "
+                         "max/min, MOOD switching) or the step is badly sized; try another --fd-rel (1e-4, 1e-6)")
+        else:
+            hints.append(f"the finite differences are stable across steps ({step_rel:.1e}), so the AD derivative "
+                         "is that of the branch taken at a non-smooth operation (|u.n| at 0, a max/min, a limiter)")
+    if mood:
+        hints.append("MOOD is on: a perturbed run may demote other particles (a discrete switch AD does not see); "
+                     "compare with scheme.limiter = \"none\" at first order")
+    return {"verdict": "disagree", "rel_difference": rel, "hint": "; ".join(hints)}
 
 
 def read_target(path: str | Path) -> dict[str, np.ndarray]:

@@ -28,12 +28,15 @@ def test_gradients_match_finite_differences_smooth_case():
     for k in ("physics.mu", "eos.c0"):
         e = res["gradients"][k]
         assert abs(e["gradient"]) > 0 and e["rel_disagreement"] < 1e-5, (k, e)
+        assert e["verdict"] == "agree" and e["hint"] == "" and "fd_10_step" not in e
     e = res["gradients"]["boundary.wall_velocity"]
     g, fd = np.asarray(e["gradient"]), np.asarray(e["fd"])
     assert abs(g[1, 0]) > 0  # the moving plate drives the flow
     # tangential wall speeds; the wall-normal components (column 1) sit exactly on the kink of the
-    # Rusanov wave speed |u.n| at u.n = 0 (measured disagreement 3e-3 there): not differentiable
+    # Rusanov wave speed |u.n| at u.n = 0 (measured disagreement 3e-3 there): not differentiable,
+    # and the verdict says so, pointing at the kink
     np.testing.assert_allclose(g[:, 0], fd[:, 0], rtol=1e-5)
+    assert e["verdict"] == "disagree" and 1e-4 < e["rel_difference"] < 1e-2 and "|u.n|" in e["hint"], e
 
 
 def test_checkpointing_gives_the_same_gradient_over_1000_steps():
@@ -226,3 +229,17 @@ def test_neighbour_overflow_in_a_differentiated_run_is_an_error():
         run_differentiable(sim, pb.params, pb.particles)
     ok = make_simulate(pb, n_steps=40)  # the default headroom suffices
     assert not bool(run_differentiable(ok, pb.params, pb.particles).overflow)
+
+
+def test_fd_verdict_states_agreement_and_the_likely_cause():
+    from mlsph_jax.sensitivity import AGREE_TOL, fd_verdict
+
+    ok = fd_verdict(-2.0, -2.0 * (1 + 1e-8))
+    assert ok["verdict"] == "agree" and ok["rel_difference"] == pytest.approx(1e-8, rel=1e-3) and ok["hint"] == ""
+    # a vector parameter whose second component is zero up to round-off in both: agreement
+    assert fd_verdict([1.0, 0.0], [1.0, 1e-13])["verdict"] == "agree"
+    step = fd_verdict(1.0, 1.093, 1.25)            # FD moves with the step: the FD side is suspect
+    assert step["verdict"] == "disagree" and step["rel_difference"] > AGREE_TOL
+    assert "change" in step["hint"] and "--fd-rel" in step["hint"] and "MOOD is on" not in step["hint"]
+    kink = fd_verdict(1.0, 1.093, 1.093 * (1 + 1e-7), mood=True)   # FD stable, AD differs
+    assert "branch taken" in kink["hint"] and "MOOD is on" in kink["hint"]
