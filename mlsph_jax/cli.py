@@ -100,7 +100,9 @@ def _parser() -> argparse.ArgumentParser:
     c_ = sub.add_parser("calibrate", parents=[diff_opts], help="fit parameters to observed time series (optax)")
     c_.add_argument("--fit", nargs="+", required=True, metavar="KEY", help="parameters to fit, e.g. physics.mu")
     c_.add_argument("--target", required=True, help="CSV with a t column and diagnostic columns (e.g. ke)")
-    c_.add_argument("--steps", type=int, default=50, help="optimiser iterations")
+    c_.add_argument("--steps", type=int, default=50, help="optimiser iterations (at most)")
+    c_.add_argument("--tol", type=float, default=None,
+                    help="stop once the loss (mean squared misfit relative to the target's mean square) is <= TOL")
     c_.add_argument("--lr", type=float, default=None,
                     help="learning rate on relative parameter changes: Adam's initial rate (default 0.05, cosine "
                          "decay); with L-BFGS a fixed step scale replacing the zoom line search (default: line search)")
@@ -303,10 +305,15 @@ def cmd_calibrate(args) -> int:
         tqdm.write(f"iteration {h['iteration']:4d}  loss {h['loss']:.6e}  {ps}")  # above the bar
 
     res = calibrate(problem, args.fit, target, steps=args.steps, lr=args.lr, progress=not args.quiet,
-                    callback=show, optimizer=args.optimizer, **_cfl_kw(cfg), **_diff_kw(args))
+                    callback=show, optimizer=args.optimizer, tol=args.tol, **_cfl_kw(cfg), **_diff_kw(args))
     out = Path(args.out) if args.out else Path("out") / f"{stem}_calibration"
     write_calibration(out, res)
-    print(f"fitted {res['final']} (loss {res['loss']:.3e}); wrote {out / 'history.json'} and {out / 'calibration.png'}")
+    why = {"tol": f"loss <= --tol {args.tol}", "plateau": "the loss stopped decreasing",
+           "steps": f"after --steps {args.steps}"}[res["stopped"]]
+    ign = f"; target columns not recorded by the run, ignored: {', '.join(res['ignored_columns'])}" \
+        if res["ignored_columns"] else ""
+    print(f"fitted {res['final']} (loss {res['loss']:.3e}, stopped {why}; fitted to {', '.join(res['columns'])}{ign}); "
+          f"wrote {out / 'history.json'} and {out / 'calibration.png'}")
     return 0
 
 

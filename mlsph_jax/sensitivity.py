@@ -209,8 +209,16 @@ OPTIMIZERS = ("lbfgs", "adam")
 
 
 def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], steps: int = 50, lr: float | None = None,
-              progress: bool = True, callback=None, optimizer: str = "lbfgs", **simulate_kw) -> dict:
+              progress: bool = True, callback=None, optimizer: str = "lbfgs", tol: float | None = None,
+              **simulate_kw) -> dict:
     """Fit ``fit`` parameters to ``target`` series with optax (module docstring).
+
+    ``target`` columns other than ``t`` that the run does not record (e.g. the ``ke_exact`` of
+    a ``timeseries.csv`` written by ``mlsph run``) are ignored and listed in the result's
+    ``ignored_columns``; at least one must be recorded.  ``tol``: stop once the loss is at or
+    below it (``stopped`` = ``"tol"``); the fit also stops when the loss changed by less than
+    :data:`PLATEAU_RTOL` (relative) in each of the last two iterations (``"plateau"``), else after
+    ``steps`` iterations (``"steps"``).
 
     ``optimizer``: ``lbfgs`` (default; optax L-BFGS with a zoom line search, which for these
     smooth few-parameter fits converges in a handful of iterations; a given ``lr`` replaces the
@@ -225,13 +233,16 @@ def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], ste
         raise InputError(f"invalid lr={lr!r}; allowed: a finite float > 0 (or None for the default)")
     if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
         raise InputError(f"invalid steps={steps!r}; allowed: an integer >= 0")
+    if tol is not None and not (np.isfinite(tol) and tol > 0):
+        raise InputError(f"invalid tol={tol!r}; allowed: a finite float > 0 (or None: run all steps)")
     _check_wrt(problem.params, fit)
     simulate = _simulate_for(problem, **simulate_kw)
-    cols = [c for c in target if c != "t"]
     shape = jax.eval_shape(simulate, problem.params, problem.particles)
-    bad = [c for c in cols if c not in shape.series]
-    if bad or not cols:
-        raise InputError(f"invalid target columns {bad or cols}; allowed: t and {', '.join(shape.series)}")
+    cols = [c for c in target if c != "t" and c in shape.series]
+    ignored = [c for c in target if c != "t" and c not in shape.series]
+    if not cols:
+        raise InputError(f"invalid target columns {ignored}: none is recorded by the run; allowed: t and at least "
+                         f"one of {', '.join(shape.series)}")
     t_obs = jnp.asarray(target["t"])
     obs = {c: jnp.asarray(target[c]) for c in cols}
     scale = {c: jnp.maximum(jnp.mean(obs[c] ** 2), 1e-300) for c in cols}
@@ -274,6 +285,7 @@ def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], ste
 
         bar = tqdm(total=steps, unit="it")
     out = None
+    stopped = "steps"
     for it in range(steps + 1):
         (val, out), g = vg(s)
         check(out, simulate, _params_at(problem.params, fit, theta0, s))
@@ -285,14 +297,26 @@ def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], ste
             bar.set_postfix(loss=f"{float(val):.3e}", **{k: f"{np.ravel(v)[0]:.6g}" for k, v in current.items()})
             if it:
                 bar.update(1)
+        if tol is not None and float(val) <= tol:
+            stopped = "tol"
+            break
+        if it >= 2 and abs(history[-2]["loss"] - float(val)) <= PLATEAU_RTOL * abs(history[-2]["loss"]) \
+                and abs(history[-3]["loss"] - history[-2]["loss"]) <= PLATEAU_RTOL * abs(history[-3]["loss"]):
+            stopped = "plateau"   # two iterations without a relative decrease of PLATEAU_RTOL
+            break
         if it == steps:
             break
         s, state = advance(s, state, val, g)
     if bar is not None:
         bar.close()
     return {"fit": list(fit), "history": history, "final": history[-1]["params"], "loss": history[-1]["loss"],
+            "stopped": stopped, "tol": tol, "columns": cols, "ignored_columns": ignored,
             "series": {c: np.asarray(out.series[c]).tolist() for c in cols}, "times": np.asarray(out.times).tolist(),
-            "target": {k: np.asarray(v).tolist() for k, v in target.items()}}
+            "target": {k: np.asarray(target[k]).tolist() for k in ["t", *cols]}}
+
+
+#: Relative loss change below which two consecutive iterations count as a plateau (the fit stops).
+PLATEAU_RTOL = 1e-9
 
 
 def _params_at(params: Params, fit: Sequence[str], theta0, s) -> Params:

@@ -144,20 +144,29 @@ def test_calibrate_cli_fits_the_viscosity_and_writes_history_and_plot(tmp_path):
     cfg = config.load("configs/taylor_green_2d.toml", ["case.n=8", "time.t_end=0.1"])
     pb = build_problem(cfg)
     obs = jax.jit(make_simulate(pb, n_steps=30, record_every=5))(pb.params, pb.particles)
-    target = tmp_path / "target.csv"
-    target.write_text("t,ke\n" + "".join(f"{t!r},{k!r}\n" for t, k in zip(np.asarray(obs.times).tolist(),
-                                                                         np.asarray(obs.series["ke"]).tolist(),
-                                                                         strict=True)))
+    target = tmp_path / "target.csv"     # as mlsph run writes it: ke_exact is not a recorded series
+    target.write_text("t,ke,ke_exact\n" + "".join(f"{t!r},{k!r},0.25\n" for t, k in zip(
+        np.asarray(obs.times).tolist(), np.asarray(obs.series["ke"]).tolist(), strict=True)))
     common = ["calibrate", "configs/taylor_green_2d.toml", "--fit", "physics.mu", "--target", str(target),
               "--set", "case.n=8", "time.t_end=0.1", "case.re=66.66666666666667", "--n-steps", "30",
               "--record-every", "5", "--quiet"]
     out = tmp_path / "cal"
-    assert main(common + ["--steps", "6", "--out", str(out)]) == 0
+    assert main(common + ["--steps", "25", "--out", str(out)]) == 0
     hist = json.loads((out / "history.json").read_text())
     assert hist["history"][0]["params"]["physics.mu"] == pytest.approx(0.015, rel=1e-12)
     assert hist["final"]["physics.mu"] == pytest.approx(float(pb.params["physics.mu"]), rel=5e-3)
+    assert hist["columns"] == ["ke"] and hist["ignored_columns"] == ["ke_exact"]
+    assert hist["stopped"] == "plateau" and len(hist["history"]) < 26     # not 25 iterations on a plateau
+    # --tol stops at the first iterate whose loss is below it (here the one after the first fit)
+    tol = 0.5 * hist["history"][2]["loss"] + 0.5 * hist["history"][1]["loss"]
+    assert main(common + ["--steps", "6", "--tol", repr(tol), "--out", str(tmp_path / "tol")]) == 0
+    h2 = json.loads((tmp_path / "tol" / "history.json").read_text())
+    assert h2["stopped"] == "tol" and len(h2["history"]) == 3 and h2["loss"] <= tol
     assert (out / "calibration.png").stat().st_size > 0
     assert main(common + ["--lr", "-1", "--out", str(tmp_path / "bad")]) == 2
+    assert main(common + ["--tol", "0", "--out", str(tmp_path / "bad")]) == 2
+    (tmp_path / "none.csv").write_text("t,ke_exact\n0.0,0.25\n")
+    assert main([*common[:5], str(tmp_path / "none.csv"), *common[6:], "--out", str(tmp_path / "bad")]) == 2
 
 
 def test_taylor_green_metrics_are_differentiable_and_agree_with_the_host_metrics():
