@@ -17,7 +17,14 @@ if _os.environ.get("MLSPH_JAX_FLOAT32", "0") != "1":
 
 __version__ = "0.1.0"
 
-from .errors import ConfigError, InputError, MLSPHError, NeighborOverflowError, SimulationError  # noqa: E402
+from .errors import (  # noqa: E402
+    ConfigError,
+    InputError,
+    MLSPHError,
+    NeighborOverflowError,
+    RunInterrupted,
+    SimulationError,
+)
 from .point_cloud import ShapeFunctions, shape_functions  # noqa: E402
 from .state import Domain, Kind, Params, Particles, make_particles  # noqa: E402
 
@@ -31,6 +38,7 @@ __all__ = [
     "NeighborOverflowError",
     "Params",
     "Particles",
+    "RunInterrupted",
     "ShapeFunctions",
     "SimulationError",
     "make_particles",

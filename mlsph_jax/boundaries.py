@@ -7,7 +7,8 @@ at larger coordinates).  At setup (:func:`mirror_walls`, host side) every fluid 
 mirror at the corner vertex).  Every Runge-Kutta stage (:meth:`MirrorWalls.apply`, inside jit)
 regenerates the ghosts from their parents:
 
-* position: mirrored parent position (ghosts follow moving parents);
+* position: mirrored parent position (ghosts follow moving parents), hence in moving frames the
+  frame velocity w of a ghost is its parent's mirrored (:meth:`MirrorWalls.ghost_frame_velocity`);
 * volume, density and pressure (hence e): copied from the parent (zero normal gradient; SPEC
   §8.2 [REC]);
 * velocity, no-slip:  u_G = 2 u_W - u_F (thesis eq. 3.22, Marrone et al. 2011), so the wall
@@ -16,12 +17,15 @@ regenerates the ghosts from their parents:
 * corner ghosts (thesis §3.7.5, Szewc et al. 2012): u_GC = 4 u_V - u_F - u_G1 - u_G2 with the two
   wall ghosts u_Gk = 2 u_Wk - u_F and the vertex velocity u_V = (u_W1 + u_W2)/2 (SPEC §8.3
   default: half the lid speed at the lid corners, zero at fixed corners), which gives
-  u_GC = u_F for no-slip walls.
+  u_GC = u_F for no-slip walls; a slip wall's u_Gk is its mirrored (normal-reversed) velocity, so
+  a free-slip/free-slip corner ghost has both components reversed, u_GC = -u_F (a point mirror).
 
 Wall velocities are the differentiable parameter ``boundary.wall_velocity[n_walls, d]`` (moving
 walls such as the Couette plate or the cavity lid).  The ghost set is fixed at setup: a particle
 that later moves into the band has no ghost, so mirror walls are meant for flows parallel to the
-walls or fixed (Eulerian) particles; ``ghost_band`` should cover the kernel support.
+walls or fixed (Eulerian) particles; ``ghost_band`` should cover the kernel support.  A run
+stops with ``Status.GHOST_BAND`` when a fluid particle enters the band of a wall it has no ghost
+across (:meth:`MirrorWalls.band_status`).
 """
 
 from __future__ import annotations
@@ -70,6 +74,26 @@ class MirrorWalls:
     position: jax.Array = dataclasses.field(metadata=dict(static=True))   # tuple of floats
     slip: jax.Array = dataclasses.field(metadata=dict(static=True))       # tuple of bools
     eos: str = dataclasses.field(metadata=dict(static=True), default="tait")
+    #: [N, n_walls] bool: particle i has a (single-wall) ghost across wall k; None: not checked
+    has_ghost: jax.Array | None = None
+    side: tuple = dataclasses.field(metadata=dict(static=True), default=())
+    band: float = dataclasses.field(metadata=dict(static=True), default=0.0)
+
+    def band_status(self, p: Particles):
+        """``(Status.GHOST_BAND or 0, first such particle or -1)``: a fluid particle within
+        ``band`` of a wall it has no ghost across.  The ghost set is fixed at setup, so such a
+        particle's mirror image is missing and the wall is incomplete around it (traceable)."""
+        from .status import Status
+
+        if self.has_ghost is None:
+            return jnp.zeros((), jnp.int32), jnp.asarray(-1, jnp.int32)
+        x = jax.lax.stop_gradient(p.x)
+        dist = jnp.stack([(x[:, ax] - pos) * sd for ax, pos, sd in zip(self.axis, self.position, self.side,
+                                                                           strict=True)], axis=1)
+        bad = (p.kind == Kind.FLUID) & jnp.any((dist < self.band) & ~self.has_ghost, axis=1)
+        hit = jnp.any(bad)
+        return (jnp.where(hit, jnp.int32(Status.GHOST_BAND), 0).astype(jnp.int32),
+                jnp.where(hit, jnp.argmax(bad), -1).astype(jnp.int32))
 
     def apply(self, p: Particles, params: Params) -> Particles:
         """Regenerate every ghost from its parent (positions, volumes, states)."""
@@ -94,14 +118,35 @@ class MirrorWalls:
         no_slip = jnp.asarray([not s for s in self.slip])
         ns_single = (~corner) & jnp.any(self.walls & no_slip[None, :], axis=1)
         uG = jnp.where(ns_single[:, None], 2.0 * wall_sum - uF, uG)
-        # corner: u_GC = 4 u_V - u_F - (2 u_W1 - u_F) - (2 u_W2 - u_F), u_V = (u_W1 + u_W2)/2
-        uG = jnp.where(corner[:, None], 4.0 * 0.5 * wall_sum + uF - 2.0 * wall_sum, uG)
+        # corner: u_GC = 4 u_V - u_F - u_G1 - u_G2, u_V = (u_W1 + u_W2)/2, u_Gk the ghost velocity of
+        # wall k alone; two no-slip walls: u_Gk = 2 u_Wk - u_F (the form below, bit for bit as before)
+        uGC = 4.0 * 0.5 * wall_sum + uF - 2.0 * wall_sum
+        if any(self.slip):   # u_Gk of a slip wall: the normal component reversed relative to the wall
+            single = jnp.zeros_like(uF)
+            for w, (ax, slip) in enumerate(zip(self.axis, self.slip, strict=True)):
+                uk = uF.at[:, ax].set(2.0 * uW[w, ax] - uF[:, ax]) if slip else 2.0 * uW[w] - uF
+                single = single + jnp.where(self.walls[:, w:w + 1], uk, 0.0)
+            any_slip = jnp.any(self.walls & ~no_slip[None, :], axis=1)
+            uGC = jnp.where(any_slip[:, None], 2.0 * wall_sum - uF - single, uGC)
+        uG = jnp.where(corner[:, None], uGC, uG)
         UG = to_conservative(prim.rho, uG, prim.p, eos, params)
         volG = p.vol[self.parent]
         x = p.x.at[self.ghost].set(xG[:, :d])
         vol = p.vol.at[self.ghost].set(volG)
         q = p.q.at[self.ghost].set(volG[:, None] * UG)
         return p.replace(x=x, vol=vol, q=q)
+
+
+    def ghost_frame_velocity(self, w):
+        """``w`` with every ghost's frame velocity the mirror image of its parent's (the normal
+        component across each mirrored wall reversed): a ghost's position is the mirror of its
+        parent's, so it moves with the mirrored velocity.  Used by :func:`mlsph_jax.rhs.rhs` in
+        moving frames, where the MLS position update and dV/dt near a wall interpolate w over
+        the ghosts (w = 0 there made the first fluid row lag behind the flow)."""
+        wG = w[self.parent]
+        for k, ax in enumerate(self.axis):
+            wG = wG.at[:, ax].set(jnp.where(self.walls[:, k], -wG[:, ax], wG[:, ax]))
+        return w.at[self.ghost].set(wG)
 
 
 def mirror_walls(x_fluid: np.ndarray, walls: list[Wall], band: float, first_index: int, eos: str):
@@ -144,10 +189,13 @@ def mirror_walls(x_fluid: np.ndarray, walls: list[Wall], band: float, first_inde
     parent = np.concatenate(parents).astype(np.int32)
     mask = np.concatenate(masks, axis=0)
     g = parent.size
+    has_ghost = np.zeros((first_index + g, nw), bool)
+    has_ghost[:n] = near
     mw = MirrorWalls(ghost=jnp.arange(first_index, first_index + g, dtype=jnp.int32), parent=jnp.asarray(parent),
                      walls=jnp.asarray(mask), axis=tuple(w.axis for w in walls),
                      position=tuple(float(w.position) for w in walls), slip=tuple(bool(w.slip) for w in walls),
-                     eos=eos)
+                     eos=eos, has_ghost=jnp.asarray(has_ghost), side=tuple(int(w.side) for w in walls),
+                     band=float(band))
     return mw, parent
 
 

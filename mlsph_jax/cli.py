@@ -1,15 +1,20 @@
 """The ``mlsph`` command line (a stable contract; documented in README and docs/config.md).
 
-    mlsph run [CONFIG] [--out DIR] [--set KEY=VALUE ...] [--quiet]
+    mlsph run [CONFIG] [--out DIR | --restart DIR] [--overwrite] [--set KEY=VALUE ...] [--quiet]
     mlsph validate CONFIG [--set KEY=VALUE ...]
     mlsph cases
+    mlsph init CASE [--out FILE.toml]
     mlsph sensitivity CONFIG --wrt KEY [KEY ...] --of METRIC [--check-fd] [--out DIR] [--set ...]
     mlsph calibrate CONFIG --fit KEY [KEY ...] --target FILE.csv [--steps N] [--lr X] [--out DIR] [--set ...]
     mlsph --version
 
-``run`` without CONFIG runs the default case (Sod's shock tube, 200 particles, under a minute on
-2 cores).  Exit codes: 0 success, 1 the simulation failed (NaN, negative density, ...; the last
-good snapshot is on disk), 2 bad configuration or arguments.
+CONFIG is a TOML file or the name of a built-in config (``mlsph run couette``, from any folder;
+``mlsph cases`` lists them).  ``run`` without CONFIG runs the default case (Sod's shock tube, 200
+particles, under a minute on 2 cores).  Exit codes: 0 success, 1 the simulation failed (NaN,
+negative density, ...; the last good snapshot is on disk), 2 bad configuration or arguments
+(also: an output folder that already holds a run, without --overwrite or --restart), 130
+interrupted by Ctrl-C or SIGTERM (the last good state, summary.json with status "interrupted",
+timeseries.csv and the plots are written; continue with --restart DIR).
 """
 
 from __future__ import annotations
@@ -20,7 +25,7 @@ import time
 from pathlib import Path
 
 from . import __version__
-from .errors import ConfigError, InputError, MLSPHError, SimulationError
+from .errors import ConfigError, InputError, MLSPHError, RunInterrupted, SimulationError
 
 DEFAULT_CONFIG = """\
 # Default case of `mlsph run`: Sod's shock tube (ideal gas), first-order MLSPH-ALE.
@@ -58,17 +63,26 @@ def _parser() -> argparse.ArgumentParser:
                       help="import a Python file or module first, e.g. one that registers your own flux, EOS or "
                            "case (docs/extending.md); repeatable")
     r = sub.add_parser("run", parents=[plug], help="run a case from a TOML config (default: Sod's shock tube)")
-    r.add_argument("config", nargs="?", help="TOML config file (omit for the default case)")
+    r.add_argument("config", nargs="?", help="TOML config file or built-in config name, e.g. couette (omit for "
+                                             "the default case; mlsph cases lists the names)")
     r.add_argument("--out", help="output folder (default: out/<config name>)")
     r.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", action="extend",
                    help="override config keys, e.g. --set case.n=400 scheme.reconstruction_degree=1")
     r.add_argument("--quiet", action="store_true", help="no progress bar and no result paragraph")
+    r.add_argument("--overwrite", action="store_true",
+                   help="replace the run already in the output folder (its old files and plots are removed)")
+    r.add_argument("--restart", metavar="DIR",
+                   help="continue the interrupted or failed run in DIR from its last checkpoint (bit for bit as if "
+                        "it had not stopped); CONFIG is optional (default DIR/config.toml) and must match the run")
     v = sub.add_parser("validate", parents=[plug], help="check a config without running it")
-    v.add_argument("config")
+    v.add_argument("config", nargs="?", help="TOML config file or built-in config name")
     v.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", action="extend")
     sub.add_parser("cases", parents=[plug], help="list the built-in cases and configs")
+    i = sub.add_parser("init", parents=[plug], help="write a built-in config (or a case's defaults) to a file to edit")
+    i.add_argument("name", metavar="CASE", help="built-in config name (e.g. couette) or case name (mlsph cases)")
+    i.add_argument("--out", help="file to write (default: ./CASE.toml; an existing file is not overwritten)")
     diff_opts = argparse.ArgumentParser(add_help=False, parents=[plug])
-    diff_opts.add_argument("config")
+    diff_opts.add_argument("config", nargs="?", help="TOML config file or built-in config name")
     diff_opts.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", action="extend")
     diff_opts.add_argument("--out", help="output folder (default: out/<config name>_<command>)")
     diff_opts.add_argument("--n-steps", type=int, default=None,
@@ -86,7 +100,9 @@ def _parser() -> argparse.ArgumentParser:
     c_ = sub.add_parser("calibrate", parents=[diff_opts], help="fit parameters to observed time series (optax)")
     c_.add_argument("--fit", nargs="+", required=True, metavar="KEY", help="parameters to fit, e.g. physics.mu")
     c_.add_argument("--target", required=True, help="CSV with a t column and diagnostic columns (e.g. ke)")
-    c_.add_argument("--steps", type=int, default=50, help="optimiser iterations")
+    c_.add_argument("--steps", type=int, default=50, help="optimiser iterations (at most)")
+    c_.add_argument("--tol", type=float, default=None,
+                    help="stop once the loss (mean squared misfit relative to the target's mean square) is <= TOL")
     c_.add_argument("--lr", type=float, default=None,
                     help="learning rate on relative parameter changes: Adam's initial rate (default 0.05, cosine "
                          "decay); with L-BFGS a fixed step scale replacing the zoom line search (default: line search)")
@@ -100,37 +116,89 @@ def _load(path: str | None, overrides):
 
     if path is None:
         return config.loads(DEFAULT_CONFIG, overrides), "default"
-    if not Path(path).is_file():
-        raise ConfigError(f"config file {path!r} does not exist")
-    return config.load(path, overrides), Path(path).stem
+    from .config.builtin import config_path
+
+    file = config_path(path)
+    return config.load(file, overrides), file.stem
+
+
+def _fix_set(args) -> None:
+    """``--set`` takes one or more values, so argparse hands it a config path that follows it
+    (``mlsph validate --set case.n=50 configs/sod.toml``): a value without ``=`` is the CONFIG
+    positional when that is empty; any other is an error naming it."""
+    sets = getattr(args, "set", None)
+    if not sets:
+        return
+    loose = [v for v in sets if "=" not in v]
+    if len(loose) == 1 and getattr(args, "config", None) is None and hasattr(args, "config"):
+        args.config = loose[0]
+        args.set = [v for v in sets if v != loose[0]]
+    elif loose:
+        raise ConfigError(f"invalid --set value {loose[0]!r}; allowed: KEY=VALUE, e.g. case.n=400 (and at most one "
+                          "CONFIG)")
 
 
 def cmd_run(args) -> int:
     from .cases import build_problem
     from .simulation import run_problem
 
-    cfg, stem = _load(args.config, args.set)
-    out = Path(args.out) if args.out else Path("out") / stem
+    if args.restart is not None:
+        if args.overwrite:
+            raise InputError(f"invalid --overwrite with --restart {args.restart}: overwriting deletes the run a "
+                             "restart continues; allowed: one of them")
+        if args.out is not None and Path(args.out).resolve() != Path(args.restart).resolve():
+            raise InputError(f"invalid --out {args.out} with --restart {args.restart}: a restart writes into the "
+                             "folder it continues; allowed: --restart DIR alone")
+        from .checkpoint import read_checkpoint
+
+        read_checkpoint(args.restart)   # a missing folder or checkpoint: say so before anything else
+        cfg, stem = _load(args.config or str(Path(args.restart) / "config.toml"), args.set)
+        out = Path(args.restart)
+    else:
+        cfg, stem = _load(args.config, args.set)
+        out = Path(args.out) if args.out else Path("out") / stem
     problem = build_problem(cfg)
-    t0 = time.perf_counter()
     try:
-        result = run_problem(problem, cfg, out_dir=out, quiet=args.quiet)
+        result = run_problem(problem, cfg, out_dir=out, quiet=args.quiet, overwrite=args.overwrite,
+                             restart=args.restart is not None)
     except SimulationError as e:
         print(f"mlsph: {e}\nmlsph: outputs (with the last good snapshot) are in {out}", file=sys.stderr)
         return 1
-    s = result.summary
+    except RunInterrupted as e:
+        print(f"mlsph: {e}", file=sys.stderr)
+        return 130
     if not args.quiet:
-        m = ", ".join(f"{k} = {v:.4g}" for k, v in s["metrics"].items())
-        c = ", ".join(f"{k} {v:+.2e}" for k, v in s["conservation"].items())
-        print(f"{problem.description}: {s['n_particles']} particles advanced to t = {s['t_final']:.6g} in "
-              f"{s['n_steps']} SSP-RK3 steps ({time.perf_counter() - t0:.1f} s wall, "
-              f"{s['compile_time_s']:.1f} s compiling, {s['particle_updates_per_s']:.3g} particle-updates/s). "
-              f"Errors against the reference: {m or 'none'}. Relative drift of the totals: {c}. "
-              f"Outputs (summary.json, fields.h5 + fields.xmf for ParaView, config.toml, PNG plots) in {out}/.")
+        print(result_paragraph(problem.description, result.summary, out))
     return 0
 
 
+def result_paragraph(description: str, s: dict, out) -> str:
+    """The one-paragraph result of ``mlsph run`` (every number as in summary.json)."""
+    from .simulation import split_metrics
+
+    errors, others = split_metrics(s["metrics"])
+    fmt = lambda d: ", ".join(f"{k} = {v:.4g}" for k, v in d.items())
+    info = s.get("conservation_info", {"label": "drift"})
+    c = ", ".join(f"{k} {v:+.2e}" for k, v in s["conservation"].items())
+    what = ("Relative drift of the totals (closed domain: round-off expected)" if info["label"] == "drift"
+            else f"Relative {info['label']} of the totals (not errors; scales in summary.json)")
+    return (f"{description}: {s['n_particles']} particles advanced to t = {s['t_final']:.6g} in "
+            f"{s['n_steps']} SSP-RK3 steps ({s['wall_time_s']:.1f} s wall, "
+            f"{s['compile_time_s']:.1f} s compiling, {s['particle_updates_per_s']:.3g} particle-updates/s). "
+            f"Errors against the reference: {fmt(errors) or 'none'}."
+            + (f" Other results: {fmt(others)}." if others else "")
+            + f" {what}: {c}. "
+            f"Outputs (summary.json, fields.h5 + fields.xmf for ParaView, config.toml, PNG plots) in {out}/.")
+
+
+def _need_config(args) -> None:
+    if args.config is None:
+        raise ConfigError(f"mlsph {args.command}: missing CONFIG; allowed: a TOML file or a built-in config name "
+                          "(mlsph cases lists them)")
+
+
 def cmd_validate(args) -> int:
+    _need_config(args)
     cfg, _ = _load(args.config, args.set)
     from .cases import build_problem
 
@@ -142,15 +210,41 @@ def cmd_validate(args) -> int:
 
 def cmd_cases(args) -> int:
     from .cases import CASES
+    from .config.builtin import CONFIG_DIR, builtin_configs, describe
 
+    print("cases (case.name):")
     for name, case in CASES.items():
-        print(f"{name}: {case.doc}")
-    cfgs = sorted(Path("configs").glob("*.toml")) if Path("configs").is_dir() else []
-    if cfgs:
-        print("\nconfigs in ./configs:")
-        for c in cfgs:
-            first = next((ln[1:].strip() for ln in c.read_text().splitlines() if ln.startswith("#")), "")
-            print(f"  {c}: {first}")
+        print(f"  {name}: {case.doc}")
+    print("\nbuilt-in configs (mlsph run NAME, mlsph init NAME):")
+    for name in builtin_configs():
+        print(f"  {name}: {describe(CONFIG_DIR / f'{name}.toml')}")
+    return 0
+
+
+def cmd_init(args) -> int:
+    from . import config
+    from .config.builtin import CONFIG_DIR, builtin_configs
+
+    out = Path(args.out) if args.out else Path(f"{args.name}.toml")
+    if out.exists():
+        raise InputError(f"invalid --out {str(out)!r}: the file exists; allowed: a new file name (mlsph init does "
+                         "not overwrite)")
+    if args.name in builtin_configs():
+        text = (CONFIG_DIR / f"{args.name}.toml").read_text()
+    elif args.name in config.registered_cases():
+        try:
+            text = f"# Defaults of case {args.name!r} (mlsph init {args.name}); docs/config.md describes every key.\n" \
+                   + config.dumps(config.load(None, case=args.name))
+        except ConfigError:
+            cfgs = [c for c in builtin_configs() if f'name = "{args.name}"' in (CONFIG_DIR / f"{c}.toml").read_text()]
+            raise ConfigError(f"invalid CASE {args.name!r}: the case has required keys without defaults; allowed: "
+                              f"one of its built-in configs ({', '.join(cfgs) or 'none'})") from None
+    else:
+        raise ConfigError(f"invalid CASE {args.name!r}; allowed: a built-in config ({', '.join(builtin_configs())}) "
+                          f"or a case ({', '.join(config.registered_cases())})")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text)
+    print(f"wrote {out}; run it with: mlsph run {out}")
     return 0
 
 
@@ -170,6 +264,7 @@ def cmd_sensitivity(args) -> int:
     from .cases import build_problem
     from .sensitivity import sensitivity
 
+    _need_config(args)
     cfg, stem = _load(args.config, args.set)
     problem = build_problem(cfg)
     t0 = time.perf_counter()
@@ -182,8 +277,10 @@ def cmd_sensitivity(args) -> int:
     for k, e in res["gradients"].items():
         line = f"  d {args.of} / d {k} = {e['gradient']}"
         if args.check_fd:
-            line += (f"   (finite differences {e['fd']}, step {e['fd_step']}, "
-                     f"relative disagreement {e['rel_disagreement']})")
+            line += (f"   (finite differences {e['fd']}, step {e['fd_step']}): AD and FD {e['verdict'].upper()}, "
+                     f"relative difference {e['rel_difference']:.1e}")
+            if e["hint"]:
+                line += f"\n    hint: {e['hint']}"
         print(line)
     out = Path(args.out) if args.out else Path("out") / f"{stem}_sensitivity"
     out.mkdir(parents=True, exist_ok=True)
@@ -196,6 +293,7 @@ def cmd_calibrate(args) -> int:
     from .cases import build_problem
     from .sensitivity import calibrate, read_target, write_calibration
 
+    _need_config(args)
     cfg, stem = _load(args.config, args.set)
     problem = build_problem(cfg)
     target = read_target(args.target)
@@ -207,10 +305,15 @@ def cmd_calibrate(args) -> int:
         tqdm.write(f"iteration {h['iteration']:4d}  loss {h['loss']:.6e}  {ps}")  # above the bar
 
     res = calibrate(problem, args.fit, target, steps=args.steps, lr=args.lr, progress=not args.quiet,
-                    callback=show, optimizer=args.optimizer, **_cfl_kw(cfg), **_diff_kw(args))
+                    callback=show, optimizer=args.optimizer, tol=args.tol, **_cfl_kw(cfg), **_diff_kw(args))
     out = Path(args.out) if args.out else Path("out") / f"{stem}_calibration"
     write_calibration(out, res)
-    print(f"fitted {res['final']} (loss {res['loss']:.3e}); wrote {out / 'history.json'} and {out / 'calibration.png'}")
+    why = {"tol": f"loss <= --tol {args.tol}", "plateau": "the loss stopped decreasing",
+           "steps": f"after --steps {args.steps}"}[res["stopped"]]
+    ign = f"; target columns not recorded by the run, ignored: {', '.join(res['ignored_columns'])}" \
+        if res["ignored_columns"] else ""
+    print(f"fitted {res['final']} (loss {res['loss']:.3e}, stopped {why}; fitted to {', '.join(res['columns'])}{ign}); "
+          f"wrote {out / 'history.json'} and {out / 'calibration.png'}")
     return 0
 
 
@@ -243,14 +346,18 @@ def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
         load_plugins(getattr(args, "plugin", []))
-        return {"run": cmd_run, "validate": cmd_validate, "cases": cmd_cases, "sensitivity": cmd_sensitivity,
-                "calibrate": cmd_calibrate}[args.command](args)
+        _fix_set(args)
+        return {"run": cmd_run, "validate": cmd_validate, "cases": cmd_cases, "init": cmd_init,
+                "sensitivity": cmd_sensitivity, "calibrate": cmd_calibrate}[args.command](args)
     except (ConfigError, InputError) as e:
         print(f"mlsph: error: {e}", file=sys.stderr)
         return 2
     except MLSPHError as e:
         print(f"mlsph: error: {e}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:   # before or after a run's own interrupt handling (which writes the outputs)
+        print("mlsph: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -172,7 +172,7 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
             p, k, st, failed, bad = carry
             p2, ovf, stats = ssp_rk3_step(p, params, dt, scheme, geom_fn, boundary)
             st2, bad2 = step_status(p, p2, params, scheme, dt, ovf, stats, dt_fixed=True, cfl=cfl,
-                                    cfl_viscous=cfl_viscous)
+                                    cfl_viscous=cfl_viscous, boundary=boundary)
             alive = st == 0
             commit = alive & (st2 == 0)   # a failing step is not committed; later steps are no-ops
             p = jax.tree_util.tree_map(lambda a, b: jnp.where(commit, a, b), p2, p)

@@ -159,7 +159,7 @@ def _vector_field(problem, nspec, check_overflow: bool):
         params = args["params"]
         p = to_particles(problem, y, params, kind=args["kind"], ppd=args["ppd"])  # ghosts regenerated
         geom = args["geom"] if stage_geometry is None else stage_geometry(p)
-        dx, dvol, dq = rhs(p, params, geom, scheme)
+        dx, dvol, dq = rhs(p, params, geom, scheme, problem.boundary)
         fluid = p.kind == Kind.FLUID
         dx = jnp.where(fluid[:, None], dx, 0.0)
         dvol = jnp.where(fluid, dvol, 0.0)

@@ -43,6 +43,20 @@ class NeighborOverflowError(SimulationError):
     repeated regrowths)."""
 
 
+class RunInterrupted(MLSPHError):
+    """A run was stopped by SIGINT (Ctrl-C) or SIGTERM.  The driver finished the chunk it was
+    in and wrote the last good state (snapshot and ``checkpoint.h5``), ``summary.json`` with
+    ``status = "interrupted"``, ``timeseries.csv`` and the plots before raising this.
+
+    Attributes: ``result`` (the :class:`~mlsph_jax.simulation.Result` of the part that ran) and
+    ``signal`` (the signal number)."""
+
+    def __init__(self, message: str, *, result=None, signal: int | None = None):
+        super().__init__(message)
+        self.result = result
+        self.signal = signal
+
+
 def invalid(argument: str, value, allowed: str) -> InputError:
     """Build the standard bad-argument error: names the argument, the value and what is allowed."""
     return InputError(f"invalid {argument}={value!r}; allowed: {allowed}")

@@ -7,7 +7,9 @@ the particles move with an interpolant of w.
 
 A **frame** has ``moving`` (whether particles move, hence whether neighbour lists and operators
 change every stage), ``velocity(U, kind, eos, params) -> w[N, d]`` (the frame velocity before any
-shifting drift; zero for non-fluid particles) and ``drift(w, geom, kind, scheme, vol) -> dw[N, d]``
+shifting drift; zero for non-fluid particles, whose motion, if any, the wall treatment gives:
+mirror ghosts move with their parents,
+:meth:`mlsph_jax.boundaries.MirrorWalls.ghost_frame_velocity`) and ``drift(w, geom, kind, scheme, vol) -> dw[N, d]``
 (the particle-shifting correction added in the right-hand side, or ``None``).
 
 A **shifting law** has ``drift(geom, scheme, vol) -> [N, d]``, the unscaled drift direction

@@ -167,7 +167,7 @@ def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, boun
         geom = geom_fn(z)
 
         def euler(zz):
-            return _euler(zz, dt, rhs(zz, params, geom, scheme))
+            return _euler(zz, dt, rhs(zz, params, geom, scheme, boundary))
 
         e, ppd, n, unres = limiter.substep(z, params, dt, geom, scheme, euler)
         ppd_min = jnp.minimum(ppd_min, ppd)
@@ -198,7 +198,7 @@ def _mood_stats(stats, p: Particles, scheme: Scheme):
 
 def step_status(p: Particles, newp: Particles, params: Params, scheme: Scheme, dt, overflow, stats, *,
                 dt_fixed: bool = False, cfl: float = 0.3, cfl_viscous: float = 0.125, dt_min: float = 0.0,
-                last=False):
+                last=False, boundary=None):
     """``(status bits, first offending particle)`` of one step from ``p`` to the candidate ``newp``
     (traceable, no host synchronisation, no gradient):
 
@@ -213,12 +213,15 @@ def step_status(p: Particles, newp: Particles, params: Params, scheme: Scheme, d
       post-shock state is faster than either initial state), so the in-run test allows an
       effective Courant number of twice ``cfl`` (0.6 by default, still inside SSP-RK3's linear
       stability range) before it stops the run;
-    * DT_UNDERFLOW when ``dt < dt_min`` and the step is not the ``last`` one before an output time.
+    * DT_UNDERFLOW when ``dt < dt_min`` and the step is not the ``last`` one before an output time;
+    * the ``boundary``'s ``band_status(newp)`` if it has one (mirror walls: GHOST_BAND).
 
     For the dt causes the particle is the one limiting the CFL step.
     """
     bits, bad = state_status(newp, params, scheme)
     bits = bits | overflow
+    if getattr(boundary, "band_status", None) is not None:
+        bits, bad = combine(bits, bad, *boundary.band_status(newp))
     unresolved, unres_particle = stats[2], stats[3]
     mood = unresolved > 0
     bits, bad = combine(bits, bad, jnp.where(mood, jnp.int32(Status.MOOD_UNRESOLVED), 0),
@@ -243,7 +246,9 @@ FIXED_DT_SLACK = 2.0
 
 def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: int, nspec=None, boundary=None,
                sharding=None):
-    """Build ``chunk(carry, params, static_geom, t_stop) -> carry`` running ``n_steps`` steps.
+    """Build ``chunk(carry, params, static_geom, t_stop, step_stop=None) -> carry`` running ``n_steps``
+    steps (steps once ``carry.t`` reaches ``t_stop`` or ``carry.step`` reaches ``step_stop`` are no-ops:
+    ``time.max_steps`` is exact).
 
     For Eulerian schemes pass the precomputed Geometry as ``static_geom``; for moving particles
     pass ``None`` and a neighbour spec ``nspec`` (lists rebuilt every stage).  ``sharding`` (a
@@ -252,13 +257,15 @@ def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: in
     does the rest.
     """
 
-    def chunk(carry: Carry, params: Params, static_geom, t_stop):
+    def chunk(carry: Carry, params: Params, static_geom, t_stop, step_stop=None):
         if sharding is not None:
             carry, static_geom = sharding.constrain((carry, static_geom))
         geom_fn = (lambda p: static_geom) if not scheme.moving else make_stage_geometry(scheme, domain, nspec)
 
         def one(c: Carry, _):
             active = (c.status == Status.OK) & (c.t < t_stop)
+            if step_stop is not None:
+                active = active & (c.step < step_stop)
 
             def advance(c: Carry) -> Carry:
                 dt = (jnp.asarray(control.dt_fixed) if control.dt_fixed > 0
@@ -269,7 +276,8 @@ def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: in
                 newp, overflow, stats = ssp_rk3_step(c.particles, params, dt, scheme, geom_fn, boundary)
                 st, bad = step_status(c.particles, newp, params, scheme, dt, overflow, stats,
                                       dt_fixed=control.dt_fixed > 0, cfl=control.cfl,
-                                      cfl_viscous=control.cfl_viscous, dt_min=control.dt_min, last=last)
+                                      cfl_viscous=control.cfl_viscous, dt_min=control.dt_min, last=last,
+                                      boundary=boundary)
                 ok = st == Status.OK
                 keep = lambda new, old: jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, old)
                 t_new = jnp.where(last, t_stop, c.t + dt)

@@ -80,10 +80,14 @@ class SnapshotWriter:
     """Appends snapshots to ``out_dir/fields.h5`` and keeps ``out_dir/fields.xmf`` current.
 
     Use as a context manager or call :meth:`close`.  ``dim`` is the space dimension (1..3);
-    ``x`` and ``vel`` must have shape ``(N, dim)``.  An existing ``fields.h5`` is replaced.
+    ``x`` and ``vel`` must have shape ``(N, dim)``.  An existing ``fields.h5`` is replaced,
+    unless ``keep`` is given: then the existing file is continued after its first ``keep``
+    snapshots (a restart; snapshots after those, written after the checkpoint the run resumes
+    from, are removed) and a file that is not a readable snapshot file of ``dim`` with at least
+    ``keep`` snapshots is refused (:class:`InputError`).
     """
 
-    def __init__(self, out_dir: str | Path, dim: int):
+    def __init__(self, out_dir: str | Path, dim: int, keep: int | None = None):
         if isinstance(dim, bool) or not isinstance(dim, int | np.integer) or dim not in (1, 2, 3):
             raise InputError(f"invalid dim={dim!r}; allowed: 1, 2 or 3")
         self.out_dir = Path(out_dir)
@@ -93,6 +97,9 @@ class SnapshotWriter:
         self.xmf_path = self.out_dir / "fields.xmf"
         self.count = 0
         self._closed = False
+        if keep is not None:
+            self._continue(int(keep))
+            return
         with h5py.File(self.h5_path, "w") as f:
             f.attrs["dim"] = self.dim
             f.attrs["format"] = FORMAT
@@ -100,6 +107,39 @@ class SnapshotWriter:
             f.attrs["kind_codes"] = _KIND_TEXT
             f.create_group("snapshots")
         write_xdmf(self.h5_path, self.xmf_path)
+
+    def _continue(self, keep: int) -> None:
+        """Open an existing file for appending after its first ``keep`` snapshots."""
+        where = f"{str(self.h5_path)!r}"
+        if not self.h5_path.is_file():
+            raise InputError(f"invalid restart: {where} does not exist; allowed: the fields.h5 of the run")
+        try:
+            with h5py.File(self.h5_path, "a") as f:
+                if f.attrs.get("format") != FORMAT or int(f.attrs.get("dim", -1)) != self.dim:
+                    raise InputError(f"invalid restart: {where} is not a {self.dim}D {FORMAT} file (format "
+                                     f"{f.attrs.get('format')!r}, dim {f.attrs.get('dim')!r})")
+                names = sorted(f["snapshots"])
+                if len(names) < keep or names[:keep] != [f"{i:05d}" for i in range(keep)]:
+                    raise InputError(f"invalid restart: {where} holds {len(names)} snapshots, the checkpoint "
+                                     f"needs {keep} (the file is truncated or from another run)")
+                for name in names[keep:]:
+                    del f["snapshots"][name]
+                for name in names[:keep]:   # read every kept snapshot: a corrupt file fails here
+                    g = f["snapshots"][name]
+                    for k in g:
+                        g[k][()]
+        except InputError:
+            raise
+        except (OSError, KeyError, ValueError, RuntimeError) as e:
+            raise InputError(f"invalid restart: {where} is unreadable (truncated or corrupt: {e}); allowed: an "
+                             "intact fields.h5 (restart from a copy, or rerun with --overwrite)") from None
+        self.count = keep
+        write_xdmf(self.h5_path, self.xmf_path)
+
+    def snapshot_attrs(self, index: int) -> dict:
+        """Attributes (``t``, ``step``, ...) of snapshot ``index``."""
+        with h5py.File(self.h5_path, "r") as f:
+            return dict(f["snapshots"][f"{index:05d}"].attrs)
 
     def write(self, t: float, fields: Mapping[str, object],
               attrs: Mapping[str, object] | None = None) -> None:

@@ -124,8 +124,11 @@ def _cols(a):
     return [a[..., k] for k in range(a.shape[-1])]
 
 
-def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme):
-    """Time derivatives ``(dx/dt, dV/dt, d(VU)/dt)`` for the given geometry (pure, jit-able)."""
+def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme, boundary=None):
+    """Time derivatives ``(dx/dt, dV/dt, d(VU)/dt)`` for the given geometry (pure, jit-able).
+
+    ``boundary`` (e.g. :class:`mlsph_jax.boundaries.MirrorWalls`): in moving frames its
+    ``ghost_frame_velocity(w)``, if it has one, gives the ghosts the frame velocity they move with."""
     eos = get_eos(scheme.eos)
     x, vol, q, kind = particles.x, particles.vol, particles.q, particles.kind
     n, d = x.shape
@@ -137,6 +140,9 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme):
     dw = frame.drift(w, geom, kind, scheme, vol)
     jsafe = geom.jsafe
     eulerian = not frame.moving
+    ghosts = None if eulerian else getattr(boundary, "ghost_frame_velocity", None)
+    if ghosts is not None:                  # mirror ghosts move with their parents (issue 16)
+        w = ghosts(w)
     fluid = (kind == Kind.FLUID)[:, None]
     dxdt = None
     if not eulerian and geom.interp is not None:
@@ -151,6 +157,8 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme):
             dxdt = jnp.einsum("nk,nkd->nd", geom.interp, wd[jsafe])
     if dw is not None:
         w = w + dw
+    if ghosts is not None:                  # ... with their parents' actual velocity
+        w = ghosts(w)
     if dxdt is None:
         dxdt = w
 

@@ -130,8 +130,62 @@ def sensitivity(problem, wrt: Sequence[str], of: str, check_fd: bool = False, fd
             fd, steps = fd.reshape(base.shape), steps.reshape(base.shape)
             rel = np.abs(gk - fd) / np.maximum(np.maximum(np.abs(gk), np.abs(fd)), 1e-300)
             entry.update(fd=fd.tolist(), fd_step=steps.tolist(), rel_disagreement=rel.tolist())
+            fd10 = None
+            if fd_verdict(gk, fd)["verdict"] != "agree":   # a second step tells a step problem from a derivative one
+                fd10 = np.zeros_like(flat)
+                for i in range(flat.size):
+                    h = 10 * steps.reshape(-1)[i]
+                    up, dn = flat.copy(), flat.copy()
+                    up[i] += h
+                    dn[i] -= h
+                    fd10[i] = (float(fj({**theta, k: jnp.asarray(up.reshape(base.shape))}))
+                               - float(fj({**theta, k: jnp.asarray(dn.reshape(base.shape))}))) / (2 * h)
+                fd10 = fd10.reshape(base.shape)
+                entry["fd_10_step"] = fd10.tolist()
+            entry.update(fd_verdict(gk, fd, fd10, mood=problem.scheme.limiter == "mood"))
         result["gradients"][k] = entry
     return result
+
+
+#: Largest relative AD/FD difference called agreement (central differences at the default
+#: relative step 1e-5 are accurate to ~1e-9 relative for a smooth objective).
+AGREE_TOL = 1e-4
+
+
+def _rel(a: np.ndarray, b: np.ndarray) -> float:
+    """max |a - b| relative to the largest entry of either (per parameter, so that a component
+    that is zero in both is not a 100 % disagreement of round-off)."""
+    return float(np.max(np.abs(a - b)) / max(float(np.max(np.abs(a))), float(np.max(np.abs(b))), 1e-300))
+
+
+def fd_verdict(gradient, fd, fd_10_step=None, *, mood: bool = False) -> dict:
+    """``{"verdict": "agree"|"disagree", "rel_difference": max relative difference, "hint": ...}``
+    of an AD gradient against central finite differences ``fd`` (and, when they disagree, the
+    differences ``fd_10_step`` at a ten times larger step).
+
+    Hints: FD that change with the step point at the FD side (the step crosses a switch: MOOD
+    demotions, a kink such as the |u.n| of a wave speed, a max/min; or is too large / too small
+    for round-off); FD that are stable across steps while AD differs point at the derivative of a
+    non-smooth operation (AD differentiates the branch taken: MOOD's demotion set, |u.n| at 0)."""
+    g, f = np.asarray(gradient, float), np.asarray(fd, float)
+    rel = _rel(g, f)
+    if rel <= AGREE_TOL:
+        return {"verdict": "agree", "rel_difference": rel, "hint": ""}
+    hints = []
+    if fd_10_step is not None:
+        f10 = np.asarray(fd_10_step, float)
+        step_rel = _rel(f10, f)
+        if step_rel > AGREE_TOL:
+            hints.append(f"the finite differences change by {step_rel:.1e} (relative) when the step grows 10x: the "
+                         "objective is not smooth at the step's scale (a kink such as |u.n| in a wave speed, a "
+                         "max/min, MOOD switching) or the step is badly sized; try another --fd-rel (1e-4, 1e-6)")
+        else:
+            hints.append(f"the finite differences are stable across steps ({step_rel:.1e}), so the AD derivative "
+                         "is that of the branch taken at a non-smooth operation (|u.n| at 0, a max/min, a limiter)")
+    if mood:
+        hints.append("MOOD is on: a perturbed run may demote other particles (a discrete switch AD does not see); "
+                     "compare with scheme.limiter = \"none\" at first order")
+    return {"verdict": "disagree", "rel_difference": rel, "hint": "; ".join(hints)}
 
 
 def read_target(path: str | Path) -> dict[str, np.ndarray]:
@@ -155,8 +209,16 @@ OPTIMIZERS = ("lbfgs", "adam")
 
 
 def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], steps: int = 50, lr: float | None = None,
-              progress: bool = True, callback=None, optimizer: str = "lbfgs", **simulate_kw) -> dict:
+              progress: bool = True, callback=None, optimizer: str = "lbfgs", tol: float | None = None,
+              **simulate_kw) -> dict:
     """Fit ``fit`` parameters to ``target`` series with optax (module docstring).
+
+    ``target`` columns other than ``t`` that the run does not record (e.g. the ``ke_exact`` of
+    a ``timeseries.csv`` written by ``mlsph run``) are ignored and listed in the result's
+    ``ignored_columns``; at least one must be recorded.  ``tol``: stop once the loss is at or
+    below it (``stopped`` = ``"tol"``); the fit also stops when the loss changed by less than
+    :data:`PLATEAU_RTOL` (relative) in each of the last two iterations (``"plateau"``), else after
+    ``steps`` iterations (``"steps"``).
 
     ``optimizer``: ``lbfgs`` (default; optax L-BFGS with a zoom line search, which for these
     smooth few-parameter fits converges in a handful of iterations; a given ``lr`` replaces the
@@ -171,13 +233,16 @@ def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], ste
         raise InputError(f"invalid lr={lr!r}; allowed: a finite float > 0 (or None for the default)")
     if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
         raise InputError(f"invalid steps={steps!r}; allowed: an integer >= 0")
+    if tol is not None and not (np.isfinite(tol) and tol > 0):
+        raise InputError(f"invalid tol={tol!r}; allowed: a finite float > 0 (or None: run all steps)")
     _check_wrt(problem.params, fit)
     simulate = _simulate_for(problem, **simulate_kw)
-    cols = [c for c in target if c != "t"]
     shape = jax.eval_shape(simulate, problem.params, problem.particles)
-    bad = [c for c in cols if c not in shape.series]
-    if bad or not cols:
-        raise InputError(f"invalid target columns {bad or cols}; allowed: t and {', '.join(shape.series)}")
+    cols = [c for c in target if c != "t" and c in shape.series]
+    ignored = [c for c in target if c != "t" and c not in shape.series]
+    if not cols:
+        raise InputError(f"invalid target columns {ignored}: none is recorded by the run; allowed: t and at least "
+                         f"one of {', '.join(shape.series)}")
     t_obs = jnp.asarray(target["t"])
     obs = {c: jnp.asarray(target[c]) for c in cols}
     scale = {c: jnp.maximum(jnp.mean(obs[c] ** 2), 1e-300) for c in cols}
@@ -220,6 +285,7 @@ def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], ste
 
         bar = tqdm(total=steps, unit="it")
     out = None
+    stopped = "steps"
     for it in range(steps + 1):
         (val, out), g = vg(s)
         check(out, simulate, _params_at(problem.params, fit, theta0, s))
@@ -231,14 +297,26 @@ def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], ste
             bar.set_postfix(loss=f"{float(val):.3e}", **{k: f"{np.ravel(v)[0]:.6g}" for k, v in current.items()})
             if it:
                 bar.update(1)
+        if tol is not None and float(val) <= tol:
+            stopped = "tol"
+            break
+        if it >= 2 and abs(history[-2]["loss"] - float(val)) <= PLATEAU_RTOL * abs(history[-2]["loss"]) \
+                and abs(history[-3]["loss"] - history[-2]["loss"]) <= PLATEAU_RTOL * abs(history[-3]["loss"]):
+            stopped = "plateau"   # two iterations without a relative decrease of PLATEAU_RTOL
+            break
         if it == steps:
             break
         s, state = advance(s, state, val, g)
     if bar is not None:
         bar.close()
     return {"fit": list(fit), "history": history, "final": history[-1]["params"], "loss": history[-1]["loss"],
+            "stopped": stopped, "tol": tol, "columns": cols, "ignored_columns": ignored,
             "series": {c: np.asarray(out.series[c]).tolist() for c in cols}, "times": np.asarray(out.times).tolist(),
-            "target": {k: np.asarray(v).tolist() for k, v in target.items()}}
+            "target": {k: np.asarray(target[k]).tolist() for k in ["t", *cols]}}
+
+
+#: Relative loss change below which two consecutive iterations count as a plateau (the fit stops).
+PLATEAU_RTOL = 1e-9
 
 
 def _params_at(params: Params, fit: Sequence[str], theta0, s) -> Params:

@@ -46,6 +46,7 @@ class Status(enum.IntFlag):
     DT_UNDERFLOW = 128
     DT_ABOVE_CFL = 256
     MOOD_UNRESOLVED = 512
+    GHOST_BAND = 1024
     #: any neighbour-list overflow (the three neighbour bits)
     NEIGHBOR_OVERFLOW = NEIGHBOR_OVERFLOW_ROW | NEIGHBOR_OVERFLOW_CELL | NEIGHBOR_OVERFLOW_REACH
 
@@ -75,6 +76,8 @@ _DESCRIPTIONS = {
     Status.MOOD_UNRESOLVED: ("MOOD flags not resolved within scheme.mood_max_iter iterations (a particle kept a "
                              "flagged, possibly invalid state)"),
     Status.DT_ABOVE_CFL: "fixed time step above the CFL limit of the current state",
+    Status.GHOST_BAND: ("a fluid particle entered the ghost band of a mirror wall it has no ghost across (ghosts "
+                        "are assigned at setup; mirror walls need flows parallel to the walls or Eulerian particles)"),
     Status.DT_UNDERFLOW: "time step underflow (below time.dt_min * t_end)",
     Status.NEIGHBOR_OVERFLOW_ROW: "neighbour-list overflow: a particle has more neighbours than the row capacity",
     Status.NEIGHBOR_OVERFLOW_CELL: "neighbour-list overflow: a cell holds more particles than the cell capacity",

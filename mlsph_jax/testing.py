@@ -14,8 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-#: Folder of the built-in configs (the repository's ``configs/``).
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+from .config.builtin import CONFIG_DIR, builtin_configs  # noqa: F401  (re-exported for the experiments)
 
 #: Per built-in config, the ``--set`` overrides of its reduced regression run: the same scheme
 #: and case on fewer particles and a shorter time, a few seconds each (``tests/test_config_regression.py``).
@@ -30,11 +29,6 @@ REDUCED_OVERRIDES: dict[str, tuple[str, ...]] = {
     "taylor_green_2d": ("case.n=12", "time.t_end=0.05", "output.snapshots=2"),
     "taylor_green_2d_mlsph": ("case.n=12", "time.t_end=0.1", "output.snapshots=2"),
 }
-
-
-def builtin_configs() -> list[str]:
-    """Stems of the built-in configs (``configs/*.toml``)."""
-    return sorted(p.stem for p in CONFIG_DIR.glob("*.toml"))
 
 
 def _floats(d: Mapping) -> dict[str, float]:

@@ -38,11 +38,46 @@ def test_missing_config_file(capsys):
     assert "does not exist" in capsys.readouterr().err
 
 
-def test_cases_lists_riemann(capsys, monkeypatch):
-    monkeypatch.chdir(ROOT)
+def test_cases_lists_cases_and_builtin_configs_from_any_folder(capsys, monkeypatch, tmp_path):
+    monkeypatch.chdir(tmp_path)
     assert main(["cases"]) == 0
     out = capsys.readouterr().out
-    assert "riemann_1d" in out and "configs/riemann_r1_tait.toml" in out
+    assert "  riemann_1d: " in out
+    configs = sorted(p.stem for p in (ROOT / "configs").glob("*.toml"))
+    lines = {ln.split(":")[0].strip(): ln for ln in out.splitlines() if ln.startswith("  ")}
+    for name in configs:
+        assert name in lines
+        assert lines[name].rstrip().endswith((".", ")")), lines[name]   # whole sentences, never cut
+    assert "SPEC" not in out
+    assert "four decaying vortices in the periodic unit square" in lines["taylor_green_2d"]
+
+
+def test_builtin_config_by_name_and_set_before_the_config(capsys, monkeypatch, tmp_path):
+    monkeypatch.chdir(tmp_path)
+    assert main(["validate", "couette"]) == 0
+    assert main(["validate", "--set", "case.n=50", str(ROOT / "configs/sod_ideal_gas.toml")]) == 0
+    assert main(["validate", str(ROOT / "configs/sod_ideal_gas.toml"), "--set", "case.n=50"]) == 0
+    assert main(["validate", "--set", "case.n=50", "sod_ideal_gas.toml"]) == 0
+    capsys.readouterr()
+    assert main(["validate", "--set", "case.n=50", "nope"]) == 2
+    err = capsys.readouterr().err
+    assert "'nope' does not exist and is not a built-in config" in err and "couette" in err
+    assert main(["validate", "couette", "--set", "case.ny=10", "oops"]) == 2
+    assert "invalid --set value 'oops'; allowed: KEY=VALUE" in capsys.readouterr().err
+
+
+def test_init_writes_an_editable_config(capsys, monkeypatch, tmp_path):
+    monkeypatch.chdir(tmp_path)
+    assert main(["init", "couette"]) == 0
+    assert (tmp_path / "couette.toml").read_text() == (ROOT / "configs/couette.toml").read_text()
+    assert main(["init", "couette"]) == 2                      # never overwrites
+    assert "the file exists" in capsys.readouterr().err
+    assert main(["init", "taylor_green_2d", "--out", "sub/tg.toml"]) == 0
+    assert config.load(tmp_path / "sub/tg.toml")["case"]["name"] == "taylor_green_2d"
+    assert main(["init", "riemann_1d"]) == 2                   # required keys: points to its configs
+    assert "riemann_r1_tait, riemann_r2_tammann, sod_ideal_gas" in capsys.readouterr().err
+    assert main(["init", "nope"]) == 2
+    assert "allowed: a built-in config (blast_2d," in capsys.readouterr().err
 
 
 def test_run_writes_the_output_contract(tmp_path):

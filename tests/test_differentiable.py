@@ -28,12 +28,15 @@ def test_gradients_match_finite_differences_smooth_case():
     for k in ("physics.mu", "eos.c0"):
         e = res["gradients"][k]
         assert abs(e["gradient"]) > 0 and e["rel_disagreement"] < 1e-5, (k, e)
+        assert e["verdict"] == "agree" and e["hint"] == "" and "fd_10_step" not in e
     e = res["gradients"]["boundary.wall_velocity"]
     g, fd = np.asarray(e["gradient"]), np.asarray(e["fd"])
     assert abs(g[1, 0]) > 0  # the moving plate drives the flow
     # tangential wall speeds; the wall-normal components (column 1) sit exactly on the kink of the
-    # Rusanov wave speed |u.n| at u.n = 0 (measured disagreement 3e-3 there): not differentiable
+    # Rusanov wave speed |u.n| at u.n = 0 (measured disagreement 3e-3 there): not differentiable,
+    # and the verdict says so, pointing at the kink
     np.testing.assert_allclose(g[:, 0], fd[:, 0], rtol=1e-5)
+    assert e["verdict"] == "disagree" and 1e-4 < e["rel_difference"] < 1e-2 and "|u.n|" in e["hint"], e
 
 
 def test_checkpointing_gives_the_same_gradient_over_1000_steps():
@@ -141,20 +144,29 @@ def test_calibrate_cli_fits_the_viscosity_and_writes_history_and_plot(tmp_path):
     cfg = config.load("configs/taylor_green_2d.toml", ["case.n=8", "time.t_end=0.1"])
     pb = build_problem(cfg)
     obs = jax.jit(make_simulate(pb, n_steps=30, record_every=5))(pb.params, pb.particles)
-    target = tmp_path / "target.csv"
-    target.write_text("t,ke\n" + "".join(f"{t!r},{k!r}\n" for t, k in zip(np.asarray(obs.times).tolist(),
-                                                                         np.asarray(obs.series["ke"]).tolist(),
-                                                                         strict=True)))
+    target = tmp_path / "target.csv"     # as mlsph run writes it: ke_exact is not a recorded series
+    target.write_text("t,ke,ke_exact\n" + "".join(f"{t!r},{k!r},0.25\n" for t, k in zip(
+        np.asarray(obs.times).tolist(), np.asarray(obs.series["ke"]).tolist(), strict=True)))
     common = ["calibrate", "configs/taylor_green_2d.toml", "--fit", "physics.mu", "--target", str(target),
               "--set", "case.n=8", "time.t_end=0.1", "case.re=66.66666666666667", "--n-steps", "30",
               "--record-every", "5", "--quiet"]
     out = tmp_path / "cal"
-    assert main(common + ["--steps", "6", "--out", str(out)]) == 0
+    assert main(common + ["--steps", "25", "--out", str(out)]) == 0
     hist = json.loads((out / "history.json").read_text())
     assert hist["history"][0]["params"]["physics.mu"] == pytest.approx(0.015, rel=1e-12)
     assert hist["final"]["physics.mu"] == pytest.approx(float(pb.params["physics.mu"]), rel=5e-3)
+    assert hist["columns"] == ["ke"] and hist["ignored_columns"] == ["ke_exact"]
+    assert hist["stopped"] == "plateau" and len(hist["history"]) < 26     # not 25 iterations on a plateau
+    # --tol stops at the first iterate whose loss is below it (here the one after the first fit)
+    tol = 0.5 * hist["history"][2]["loss"] + 0.5 * hist["history"][1]["loss"]
+    assert main(common + ["--steps", "6", "--tol", repr(tol), "--out", str(tmp_path / "tol")]) == 0
+    h2 = json.loads((tmp_path / "tol" / "history.json").read_text())
+    assert h2["stopped"] == "tol" and len(h2["history"]) == 3 and h2["loss"] <= tol
     assert (out / "calibration.png").stat().st_size > 0
     assert main(common + ["--lr", "-1", "--out", str(tmp_path / "bad")]) == 2
+    assert main(common + ["--tol", "0", "--out", str(tmp_path / "bad")]) == 2
+    (tmp_path / "none.csv").write_text("t,ke_exact\n0.0,0.25\n")
+    assert main([*common[:5], str(tmp_path / "none.csv"), *common[6:], "--out", str(tmp_path / "bad")]) == 2
 
 
 def test_taylor_green_metrics_are_differentiable_and_agree_with_the_host_metrics():
@@ -226,3 +238,17 @@ def test_neighbour_overflow_in_a_differentiated_run_is_an_error():
         run_differentiable(sim, pb.params, pb.particles)
     ok = make_simulate(pb, n_steps=40)  # the default headroom suffices
     assert not bool(run_differentiable(ok, pb.params, pb.particles).overflow)
+
+
+def test_fd_verdict_states_agreement_and_the_likely_cause():
+    from mlsph_jax.sensitivity import AGREE_TOL, fd_verdict
+
+    ok = fd_verdict(-2.0, -2.0 * (1 + 1e-8))
+    assert ok["verdict"] == "agree" and ok["rel_difference"] == pytest.approx(1e-8, rel=1e-3) and ok["hint"] == ""
+    # a vector parameter whose second component is zero up to round-off in both: agreement
+    assert fd_verdict([1.0, 0.0], [1.0, 1e-13])["verdict"] == "agree"
+    step = fd_verdict(1.0, 1.093, 1.25)            # FD moves with the step: the FD side is suspect
+    assert step["verdict"] == "disagree" and step["rel_difference"] > AGREE_TOL
+    assert "change" in step["hint"] and "--fd-rel" in step["hint"] and "MOOD is on" not in step["hint"]
+    kink = fd_verdict(1.0, 1.093, 1.093 * (1 + 1e-7), mood=True)   # FD stable, AD differs
+    assert "branch taken" in kink["hint"] and "MOOD is on" in kink["hint"]

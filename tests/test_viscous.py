@@ -121,7 +121,10 @@ def test_linear_couette_profile_is_steady():
 @pytest.mark.parametrize("frame", ["eulerian", "lagrangian", "ale_shift"])
 def test_uniform_flow_parallel_to_walls_stays_uniform(frame):
     """Uniform flow u = (0.7, 0) between free-slip walls (and no-slip walls moving with the flow)
-    with viscosity: nothing may change, also with moving and shifted particles."""
+    with viscosity: nothing may change, also with moving and shifted particles, and every fluid
+    particle, the rows next to the walls included, moves by u t (their ghosts move with them, so
+    their frame velocity is the mirror of their parent's: with w = 0 on ghosts the first row
+    moved 14 % less than u t and the second more, while u and rho stayed uniform)."""
     for slip, wv in ((True, [[0.0, 0.0], [0.0, 0.0]]), (False, [[0.7, 0.0], [0.7, 0.0]])):
         p, params, scheme, domain, walls = channel(8, 0.05, wv, lambda x: np.tile([0.7, 0.0], (len(x), 1)),
                                                    frame=frame, slip=slip)
@@ -132,6 +135,11 @@ def test_uniform_flow_parallel_to_walls_stays_uniform(frame):
         fl = np.asarray(res.particles.kind) == Kind.FLUID
         rho = np.asarray(res.particles.q[:, 0] / res.particles.vol)[fl]
         np.testing.assert_allclose(rho, 1.0, atol=1e-11)
+        moved = np.asarray(res.particles.x)[fl] - np.asarray(p.x)[fl]
+        length = domain.upper[0] - domain.lower[0]
+        moved[:, 0] = (moved[:, 0] - 0.7 * 0.05 + 0.5 * length) % length - 0.5 * length + 0.7 * 0.05   # periodic x
+        expected = [0.7 * 0.05, 0.0] if frame != "eulerian" else [0.0, 0.0]
+        np.testing.assert_allclose(moved, np.tile(expected, (len(moved), 1)), atol=1e-12)
 
 
 def test_stokes_first_problem():
@@ -227,3 +235,56 @@ def test_uniform_flow_stays_uniform_on_shifted_disordered_particles(law):
     np.testing.assert_allclose(rho, 1.0, atol=1e-11)
     moved = (np.asarray(res.particles.x) - x0 - np.array([0.7, -0.3]) * res.summary["t_final"] + 0.5) % 1.0 - 0.5
     assert np.abs(moved).max() > 1e-3 / 12, "the shifting drift did not act"
+
+
+@pytest.mark.parametrize("slip", [(True, True), (False, False), (True, False)])
+def test_corner_ghost_velocities(slip):
+    """Corner ghosts (point mirror at the corner of two walls) get u_GC = 4 u_V - u_F - u_G1 - u_G2
+    with each wall's own ghost velocity u_Gk: free-slip/free-slip reverses both components
+    (u_GC = -u_F; before, the corner formula assumed no-slip walls and gave u_GC = u_F), no-slip/
+    no-slip keeps u_F, and a free-slip x-wall with a no-slip y-wall gives the image of either
+    wall ghost in the other wall, (u_x, -u_y) mirrored then negated: (+u_x, -u_y) -> here (0.3, 0.2)."""
+    dx = 0.1
+    x = np.array([[0.05, 0.05], [0.45, 0.45]])      # the first one near both walls
+    uF = np.array([[0.3, -0.2], [0.1, 0.1]])
+    params = Params({**TAIT, "boundary.wall_velocity": jnp.zeros((2, 2))})
+    p = tait_particles(x, uF, dx, params, 0)
+    walls = [Wall(0, 0.0, 1, slip[0]), Wall(1, 0.0, 1, slip[1])]
+    q, mw = with_ghosts(p, walls, 0.15, params, "tait")
+    corner = int(np.flatnonzero(np.asarray(mw.walls).sum(axis=1) == 2)[0])
+    g = int(mw.ghost[corner])
+    u = np.asarray(q.q[g, 1:3] / q.q[g, 0])
+    expected = {(True, True): [-0.3, 0.2], (False, False): [0.3, -0.2], (True, False): [0.3, 0.2]}[slip]
+    np.testing.assert_allclose(u, expected, atol=1e-15)
+    np.testing.assert_allclose(np.asarray(q.x[g]), [-0.05, -0.05], atol=1e-15)
+
+
+def test_fluid_entering_the_ghost_band_stops_the_run():
+    """Mirror ghosts are assigned at setup to the particles within the band (3.2 dx) of a wall; a
+    particle set just outside the band, in a Lagrangian flow towards the bottom wall, enters it
+    without a ghost: the run stops with Status.GHOST_BAND naming that particle instead of going
+    on with a wall that has a hole.  (No false alarm: the Lagrangian and ale_shift runs between
+    walls of test_uniform_flow_parallel_to_walls_stays_uniform run with the check.)"""
+    from mlsph_jax.boundaries import BOUNDARIES
+    from mlsph_jax.errors import SimulationError
+    from mlsph_jax.status import Status
+
+    dx, ny = 1 / 8, 8
+    x = square_lattice(4, ny, dx)
+    params = Params({**TAIT, "physics.mu": 0.0, "boundary.wall_velocity": jnp.zeros((2, 2))})
+    walls_ = [Wall(1, 0.0, 1, True), Wall(1, 1.0, -1, True)]
+    domain = Domain((0.0, -4 * dx), (0.5, 1.0 + 4 * dx), (True, False))
+    scheme = Scheme(eos="tait", frame="lagrangian", reconstruction_degree=1, degree=2, beta=1.5)
+
+    def run(x):
+        pf = tait_particles(x, np.tile([0.0, -0.5], (len(x), 1)), dx, params, 1)
+        p, walls = BOUNDARIES.get("mirror_ghosts").setup(pf, walls_, 3.2 * dx, params, "tait")
+        return Simulation(Problem("towards_wall", p, params, scheme, domain, 0.004, boundary=walls),
+                          chunk=10).run(progress=False)
+
+    i = int(np.flatnonzero(np.isclose(x[:, 1], 3.5 * dx))[3])      # a particle of the fourth row
+    x = x.copy()
+    x[i, 1] = 3.2 * dx + 5e-4
+    with pytest.raises(SimulationError, match="ghost band") as err:
+        run(x)
+    assert err.value.status & Status.GHOST_BAND and err.value.particle == i

@@ -156,7 +156,8 @@ TIME_KEYS: dict[str, Key] = {
     "dt": Key(float, 0.0, minimum=0.0, unit="s", note="0 = adaptive",
               doc="fixed time step; 0 selects the adaptive CFL step"),
     "max_steps": Key(int, 1_000_000, minimum=1,
-                     doc="maximum number of time steps before the run is stopped"),
+                     doc="the run stops (exit 1) after exactly this many time steps if t_end is not reached; "
+                         "continue it with `mlsph run --restart DIR --set time.max_steps=...`"),
     "chunk": Key(int, 50, minimum=1,
                  doc="time steps per jitted scan chunk (output, progress and neighbour checks "
                      "happen between chunks)"),
