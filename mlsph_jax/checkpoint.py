@@ -4,7 +4,8 @@ The snapshots in ``fields.h5`` hold primitive fields for plotting and ParaView; 
 continued bit for bit from them (``rho u`` recomputed from ``rho`` and ``u`` is not the carried
 ``V U``).  :class:`~mlsph_jax.simulation.Simulation` therefore also writes ``checkpoint.h5``
 at every output time, when it is interrupted and when it fails: the scan carry (particles
-``x, vol, q, kind, ppd``, time, step count, last ``dt``, MOOD statistics), the neighbour spec
+``x, vol, q, kind, ppd``, time, step count, last ``dt``, MOOD statistics, the last step's
+approximation degrees and the reduced-degree statistics), the neighbour spec
 the run has grown to, the particles the Eulerian geometry was computed from, the diagnostics
 time series so far, the steady-state test's previous velocities, the index of the next output
 time, the driver settings and the resolved configuration.  The file is replaced atomically
@@ -47,7 +48,7 @@ RUN_FILES = ("summary.json", "fields.h5", "fields.xmf", "config.toml", "timeseri
 #: Files whose presence means: this folder holds a run.
 _RUN_MARKERS = ("summary.json", "fields.h5", CHECKPOINT)
 #: Settings a restart may change (they do not change the numbers of the steps).
-RESTART_MAY_CHANGE = ("time.max_steps", "output.progress", "output.plots")
+RESTART_MAY_CHANGE = ("time.max_steps", "output.progress", "output.plots", "output.degree_fallback_warn")
 
 _CARRY_SCALARS = ("t", "step", "dt_last")
 _PARTICLE_FIELDS = ("x", "vol", "q", "kind", "ppd")
@@ -78,6 +79,8 @@ class Checkpoint:
     status: str
     wall_time_s: float
     compile_time_s: float
+    degree: np.ndarray | None = None     # [N, 2] degrees of the last step (mlsph_jax.fallback)
+    fallback: np.ndarray | None = None   # reduced-degree statistics (fallback.STATS, max and last)
 
 
 def write_checkpoint(out_dir: str | Path, ck: Checkpoint) -> Path:
@@ -96,6 +99,9 @@ def write_checkpoint(out_dir: str | Path, ck: Checkpoint) -> Path:
             for k in _CARRY_SCALARS:
                 f.create_dataset(k, data=np.asarray(getattr(ck, k)))
             f.create_dataset("mood", data=np.asarray(ck.mood))
+            for k in ("degree", "fallback"):
+                if getattr(ck, k) is not None:
+                    f.create_dataset(k, data=np.asarray(getattr(ck, k)))
             f.create_dataset("vel_prev", data=np.asarray(ck.vel_prev))
             if ck.geom_source is not None:
                 f.create_dataset("geom_source/x", data=np.asarray(ck.geom_source[0]))
@@ -141,6 +147,7 @@ def read_checkpoint(out_dir: str | Path) -> Checkpoint:
             arrays = {k: g[k][()] for k in _PARTICLE_FIELDS}
             scalars = {k: f[k][()] for k in _CARRY_SCALARS}
             mood = f["mood"][()]
+            extra = {k: f[k][()] for k in ("degree", "fallback") if k in f}   # absent: an older checkpoint
             vel_prev = f["vel_prev"][()]
             geom = (f["geom_source/x"][()], f["geom_source/vol"][()]) if "geom_source" in f else None
     except InputError:
@@ -149,7 +156,7 @@ def read_checkpoint(out_dir: str | Path) -> Checkpoint:
         raise InputError(f"invalid restart file {str(path)!r}: unreadable or incomplete ({e}); allowed: a "
                          f"{CHECKPOINT} written by an mlsph-jax run") from None
     particles = Particles(**{k: jnp.asarray(v) for k, v in arrays.items()})
-    return Checkpoint(particles=particles, mood=mood, vel_prev=vel_prev, geom_source=geom, **scalars,
+    return Checkpoint(particles=particles, mood=mood, vel_prev=vel_prev, geom_source=geom, **scalars, **extra,
                       next_target=int(meta["next_target"]), n_snapshots=int(meta["n_snapshots"]),
                       nspec=meta["nspec"], regrowths=int(meta["regrowths"]), regrowth_log=meta["regrowth_log"],
                       series=meta["series"], t_prev=float(meta["t_prev"]), steady=meta["steady"],

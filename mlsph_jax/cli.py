@@ -22,10 +22,11 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+import warnings
 from pathlib import Path
 
 from . import __version__
-from .errors import ConfigError, InputError, MLSPHError, RunInterrupted, SimulationError
+from .errors import ConfigError, DegreeFallbackWarning, InputError, MLSPHError, RunInterrupted, SimulationError
 
 DEFAULT_CONFIG = """\
 # Default case of `mlsph run`: Sod's shock tube (ideal gas), first-order MLSPH-ALE.
@@ -159,8 +160,9 @@ def cmd_run(args) -> int:
         out = Path(args.out) if args.out else Path("out") / stem
     problem = build_problem(cfg)
     try:
-        result = run_problem(problem, cfg, out_dir=out, quiet=args.quiet, overwrite=args.overwrite,
-                             restart=args.restart is not None)
+        with _fallback_lines():
+            result = run_problem(problem, cfg, out_dir=out, quiet=args.quiet, overwrite=args.overwrite,
+                                 restart=args.restart is not None)
     except SimulationError as e:
         print(f"mlsph: {e}\nmlsph: outputs (with the last good snapshot) are in {out}", file=sys.stderr)
         return 1
@@ -170,6 +172,28 @@ def cmd_run(args) -> int:
     if not args.quiet:
         print(result_paragraph(problem.description, result.summary, out))
     return 0
+
+
+class _fallback_lines(warnings.catch_warnings):
+    """Context manager: each :class:`DegreeFallbackWarning` of the run becomes one line
+    ``mlsph: warning: ...`` on stderr (also when the run fails or is interrupted); other
+    warnings are shown as usual."""
+
+    def __init__(self):
+        super().__init__(record=True)
+
+    def __enter__(self):
+        self._caught = super().__enter__()
+        warnings.simplefilter("always", DegreeFallbackWarning)
+        return self._caught
+
+    def __exit__(self, *exc):
+        super().__exit__(*exc)
+        for w in self._caught:
+            if issubclass(w.category, DegreeFallbackWarning):
+                print(f"mlsph: warning: {w.message}", file=sys.stderr)
+            else:
+                warnings.showwarning(w.message, w.category, w.filename, w.lineno)
 
 
 def result_paragraph(description: str, s: dict, out) -> str:

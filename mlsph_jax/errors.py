@@ -57,6 +57,13 @@ class RunInterrupted(MLSPHError):
         self.signal = signal
 
 
+class DegreeFallbackWarning(UserWarning):
+    """A run used a reduced approximation degree at more fluid particles than
+    ``output.degree_fallback_warn`` allows (MLS degree fallback, the ``corrected`` -> kernel
+    gradient fallback, or exactly-zero fixed-centre derivatives at degree-0 particles; see
+    :mod:`mlsph_jax.fallback`).  The message names the fraction, the threshold and the key."""
+
+
 def invalid(argument: str, value, allowed: str) -> InputError:
     """Build the standard bad-argument error: names the argument, the value and what is allowed."""
     return InputError(f"invalid {argument}={value!r}; allowed: {allowed}")

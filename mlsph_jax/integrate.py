@@ -21,6 +21,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
+from . import fallback
 from . import neighbors as nb
 from .eos import get_eos, to_primitive
 from .kernels import safe_norm
@@ -46,7 +47,10 @@ class StepControl:
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class Carry:
-    """Scan carry: state, time, step counter, status code and the first offending particle."""
+    """Scan carry: state, time, step counter, status code and the first offending particle,
+    the last step and the MOOD statistics; ``degree[N, 2]`` the smallest active degree of the
+    area shape functions and of the fit over the stages of the last step (-1: none, or no step
+    yet) and ``fallback`` the reduced-degree statistics (:mod:`mlsph_jax.fallback`)."""
 
     particles: Particles
     t: jax.Array
@@ -55,6 +59,8 @@ class Carry:
     bad_particle: jax.Array
     dt_last: jax.Array
     mood: jax.Array
+    degree: jax.Array
+    fallback: jax.Array
 
 #: Entries of ``Carry.mood`` (MOOD statistics accumulated over committed steps).
 MOOD_STATS = ("flagged_fraction_max", "flagged_fraction_sum", "rhs_evaluations", "unresolved_stages")
@@ -148,8 +154,9 @@ def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, boun
 
     Returns ``(new state, overflow, stats)``: ``overflow`` the :class:`Status` neighbour bits
     of the stages' lists (int32, 0 if none overflowed) and ``stats = (ppd, rhs evaluations,
-    unresolved stages, first unresolved particle or -1)`` where ``ppd`` is the smallest
-    per-particle degree used in the three stages (the state's ``ppd`` field carries it out).
+    unresolved stages, first unresolved particle or -1, degree)`` where ``ppd`` is the smallest
+    per-particle degree used in the three stages (the state's ``ppd`` field carries it out) and
+    ``degree[N, 2]`` the smallest ``Geometry.degree`` of the stages.
 
     The three stages run as a ``lax.scan`` over the Shu-Osher coefficients, so the right-hand
     side is traced (and compiled) once, not three times.  ``boundary`` (e.g.
@@ -160,7 +167,7 @@ def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, boun
     dt = jnp.asarray(dt, p.q.dtype)  # the state's precision (run.precision); the time itself stays float64
 
     def stage(carry, ab):
-        z, overflow, ppd_min, n_evals, unresolved, unres_particle = carry
+        z, overflow, ppd_min, n_evals, unresolved, unres_particle, deg_min = carry
         a, b = ab
         if boundary is not None:
             z = boundary.apply(z, params)
@@ -176,16 +183,18 @@ def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, boun
         unres_particle = jnp.where(unres_particle >= 0, unres_particle, first)
         n_evals, unresolved = n_evals + n, unresolved + jnp.any(unres).astype(jnp.int32)
         cand = _combine(a, p, b, e)
-        return (cand, overflow | overflow_bits(geom), ppd_min, n_evals, unresolved, unres_particle), None
+        deg_min = jnp.minimum(deg_min, geom.degree)
+        return (cand, overflow | overflow_bits(geom), ppd_min, n_evals, unresolved, unres_particle, deg_min), None
 
     coeffs = (jnp.asarray(SSP_RK3_A, p.q.dtype), jnp.asarray(SSP_RK3_B, p.q.dtype))
     ppd_start = jnp.full_like(p.ppd, scheme.reconstruction_degree) if limiter.needs_high_order else p.ppd
     zero = jnp.asarray(0, jnp.int32)
-    init = (p, zero, ppd_start, zero, zero, jnp.asarray(-1, jnp.int32))
-    (out, overflow, ppd_min, n_evals, unresolved, unres_particle), _ = jax.lax.scan(stage, init, coeffs)
+    deg0 = jnp.full((p.n, 2), jnp.iinfo(jnp.int32).max, jnp.int32)
+    init = (p, zero, ppd_start, zero, zero, jnp.asarray(-1, jnp.int32), deg0)
+    (out, overflow, ppd_min, n_evals, unresolved, unres_particle, deg_min), _ = jax.lax.scan(stage, init, coeffs)
     if boundary is not None:
         out = boundary.apply(out, params)
-    return out.replace(ppd=ppd_min), overflow, (ppd_min, n_evals, unresolved, unres_particle)
+    return out.replace(ppd=ppd_min), overflow, (ppd_min, n_evals, unresolved, unres_particle, deg_min)
 
 
 def _mood_stats(stats, p: Particles, scheme: Scheme):
@@ -283,9 +292,11 @@ def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: in
                 t_new = jnp.where(last, t_stop, c.t + dt)
                 inc = _mood_stats(stats, newp, scheme)
                 mood = jnp.where(ok, c.mood.at[0].set(jnp.maximum(c.mood[0], inc[0])).at[1:].add(inc[1:]), c.mood)
+                fb = fallback.update_stats(c.fallback, fallback.step_fractions(stats[4], c.particles.kind, scheme))
                 return Carry(keep(newp, c.particles), jnp.where(ok, t_new, c.t),
                              c.step + ok.astype(c.step.dtype), st, jnp.where(ok, c.bad_particle, bad),
-                             jnp.where(ok, dt, c.dt_last), mood)
+                             jnp.where(ok, dt, c.dt_last), mood, jnp.where(ok, stats[4], c.degree),
+                             jnp.where(ok, fb, c.fallback))
 
             return jax.lax.cond(active, advance, lambda c: c, c), None
 
@@ -298,7 +309,7 @@ def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: in
 def initial_carry(particles: Particles, t0: float = 0.0) -> Carry:
     return Carry(particles, jnp.asarray(t0, jnp.float64), jnp.asarray(0, jnp.int32),
                  jnp.asarray(Status.OK, jnp.int32), jnp.asarray(-1, jnp.int32), jnp.asarray(0.0),
-                 jnp.zeros(len(MOOD_STATS)))
+                 jnp.zeros(len(MOOD_STATS)), fallback.initial_degrees(particles.n), fallback.initial_stats())
 
 
 @functools.partial(jax.jit, static_argnames=("scheme", "domain"))

@@ -5,7 +5,7 @@ The output contract (other tools rely on it; keep it stable)::
     OUT/fields.h5     /snapshots/00000, /snapshots/00001, ...  (5 digits, from 00000)
                       each group: attribute "t" (float) and datasets
                         x [N,d], vol [N], rho [N], vel [N,d], p [N], kind [N]   (always)
-                        e [N], ppd [N], ...                                     (optional)
+                        e [N], ppd [N], area_degree [N], fit_degree [N], ...    (optional)
                         xyz [N,3]  x zero-padded to 3 components, only when d < 3 (for XDMF)
                       root attributes: "dim", "format" = "mlsph_jax.snapshots", "version"
     OUT/fields.xmf    XDMF 3 temporal collection of Polyvertex grids over fields.h5

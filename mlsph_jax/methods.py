@@ -4,11 +4,13 @@
 A method is an object with
 
 * ``default_beta``: the smoothing-length factor h_i = beta V_i^(1/d) used when ``scheme.beta = 0``;
-* ``areas(dx, h, vol, idx, mask, jsafe, rev, scheme) -> (A, values, coeffs)``: the area vectors
-  ``A[N, K, d]`` (antisymmetric, A_ji = -A_ij), the method's own interpolation weights
-  ``values[N, K]`` (N_j(x_i), or ``None`` when the method has none) and, when the area build
+* ``areas(dx, h, vol, idx, mask, jsafe, rev, scheme) -> (A, values, coeffs[, degree])``: the area
+  vectors ``A[N, K, d]`` (antisymmetric, A_ji = -A_ij), the method's own interpolation weights
+  ``values[N, K]`` (N_j(x_i), or ``None`` when the method has none), when the area build
   already produced them, the fixed-centre fit coefficients reused by the reconstruction
-  (``None`` otherwise).
+  (``None`` otherwise) and, optionally, the per-particle degree of its shape functions after
+  fallback (``ShapeOperators.degree``; :mod:`mlsph_jax.fallback`).  A method whose areas use
+  ``scheme.approximation`` says so with ``uses_approximation = True``.
 
 Built in:
 
@@ -35,6 +37,7 @@ class MLSPHALE:
     """MLSPH-ALE: MLS area vectors A_ij = V_i grad N_ji - V_j grad N_ij (thesis eq. 4.36, 5.77)."""
 
     default_beta: float = 1.5
+    uses_approximation: bool = True
 
     def areas(self, dx, h, vol, idx, mask, jsafe, rev, scheme):
         aspec = scheme.area_spec()
@@ -42,7 +45,7 @@ class MLSPHALE:
         G = ops.gradients                              # grad N_j(x_i) = grad N_ji
         G_rev = reverse_gather(G, jsafe, rev)          # grad N_i(x_j) = grad N_ij
         A = vol[:, None, None] * G - vol[jsafe][..., None] * G_rev
-        return A, ops.values, (ops.coeffs if aspec.with_coeffs else None)
+        return A, ops.values, (ops.coeffs if aspec.with_coeffs else None), ops.degree
 
 
 @dataclasses.dataclass(frozen=True)

@@ -36,7 +36,8 @@ class ShapeFunctions:
 
     ``neighbors[N, K]`` (padded with N), ``mask[N, K]``, ``values[N, K]`` = N_j(x_i) and
     ``gradients[N, K, d]`` = grad N_j(x_i) for j = neighbors[i, k]; ``h[N]`` smoothing lengths,
-    ``degree[N]`` the active MLS degree after fallback (-1 for kernel approximations),
+    ``degree[N]`` the active MLS degree after fallback (``corrected``: 1 for the renormalised
+    gradient, 0 where it fell back to the kernel gradient; ``kernel``: -1),
     ``operators`` the underlying :class:`ShapeOperators` (with MLS coefficients),
     ``domain`` and ``spec`` as used.
     """

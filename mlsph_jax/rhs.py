@@ -51,6 +51,7 @@ import jax
 import jax.numpy as jnp
 
 from . import approximation as apx
+from . import fallback
 from .approximation import mls
 from .approximation import rows as _rows
 from .eos import get_eos, to_primitive
@@ -74,7 +75,8 @@ class Geometry:
     For Eulerian runs it is computed once per chunk; for moving particles once per stage.
     idx/mask/rev: neighbour list; pair_mask excludes padding and self; dx[N,K,d] = x_j - x_i;
     A[N,K,d] area vectors; h[N]; coeffs[N,m,K] reconstruction fit (None for first order);
-    interp[N,K] weights of the position update.
+    interp[N,K] weights of the position update; degree[N,2] the active degree of the area shape
+    functions and of the fit after fallback (-1: none; :mod:`mlsph_jax.fallback`).
     """
 
     idx: jax.Array
@@ -87,6 +89,7 @@ class Geometry:
     coeffs: jax.Array | None
     interp: jax.Array
     overflow: jax.Array
+    degree: jax.Array
 
     @property
     def jsafe(self):
@@ -111,13 +114,16 @@ def geometry(x, vol, nl, scheme: Scheme, domain: Domain) -> Geometry:
     jsafe = jnp.where(mask, idx, self_i)
     pair_mask = mask & (idx != self_i)
     kern = get_kernel(scheme.kernel)
-    A, values, coeffs = scheme.component("method").areas(dx, h, vol, idx, mask, jsafe, rev, scheme)
+    A, values, coeffs, *area_deg = scheme.component("method").areas(dx, h, vol, idx, mask, jsafe, rev, scheme)
+    area_deg = area_deg[0] if area_deg else None
+    fit_deg = area_deg if coeffs is not None else None          # coefficients of the area build reused
     interp = scheme.component("position_update").weights(values, dx, h, jsafe, mask, vol, kern)
     if coeffs is None and scheme.needs_fit:
-        coeffs = apx.build_from_offsets(dx, h, vol, idx, mask, scheme.reconstruction_spec(),
-                                        coeffs_only=True).coeffs
+        fit = apx.build_from_offsets(dx, h, vol, idx, mask, scheme.reconstruction_spec(), coeffs_only=True)
+        coeffs, fit_deg = fit.coeffs, fit.degree
     A = jnp.where(pair_mask[..., None], A, 0.0)
-    return Geometry(idx, mask, rev, pair_mask, dx, A, h, coeffs, interp, nl.overflow)
+    return Geometry(idx, mask, rev, pair_mask, dx, A, h, coeffs, interp, nl.overflow,
+                    fallback.stack(area_deg, fit_deg, n))
 
 
 def _cols(a):

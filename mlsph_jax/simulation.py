@@ -21,6 +21,7 @@ import re
 import signal
 import threading
 import time
+import warnings
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
@@ -28,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import io
+from . import fallback, io
 from . import neighbors as nb
 from .checkpoint import (
     RESTART_MAY_CHANGE,
@@ -39,7 +40,7 @@ from .checkpoint import (
     write_checkpoint,
 )
 from .eos import get_eos, to_primitive
-from .errors import InputError, NeighborOverflowError, RunInterrupted, SimulationError
+from .errors import DegreeFallbackWarning, InputError, NeighborOverflowError, RunInterrupted, SimulationError
 from .integrate import MOOD_STATS, Carry, StepControl, initial_carry
 from .run import RunSetup, setup_run
 from .scheme import Scheme
@@ -167,7 +168,8 @@ class Simulation:
                 "scheme": dataclasses.asdict(self.problem.scheme)}
 
     def run(self, out_dir: str | Path | None = None, snapshots: int = 10, progress: bool = True,
-            plots: bool = True, *, overwrite: bool = False, restart: bool = False) -> Result:
+            plots: bool = True, *, overwrite: bool = False, restart: bool = False,
+            degree_fallback_warn: float = fallback.DEFAULT_WARN) -> Result:
         """Run to ``t_end`` writing ``snapshots`` output times (plus the initial state) to ``out_dir``.
 
         ``out_dir`` must not hold a run (``summary.json``, ``fields.h5`` or ``checkpoint.h5``) unless
@@ -180,8 +182,18 @@ class Simulation:
         SIGINT (Ctrl-C) or SIGTERM finish the current chunk, write the last good state (snapshot
         and checkpoint), ``summary.json`` with ``status = "interrupted"``, ``timeseries.csv`` and the
         plots, then raise :class:`~mlsph_jax.errors.RunInterrupted`; a second Ctrl-C stops at once.
+
+        Reduced approximation degree (:mod:`mlsph_jax.fallback`): each snapshot holds the
+        per-particle ``area_degree``/``fit_degree``, ``summary.json`` the ``degree_fallback``
+        fractions, and a :class:`~mlsph_jax.errors.DegreeFallbackWarning` is issued (at the output
+        time it is first seen) when a fraction of fluid particles exceeds ``degree_fallback_warn``
+        (``output.degree_fallback_warn``).
         """
         pb = self.problem
+        thr = degree_fallback_warn
+        if isinstance(thr, bool) or not isinstance(thr, int | float) or not 0.0 <= thr <= 1.0:
+            raise InputError(f"invalid degree_fallback_warn={thr!r} ({fallback.WARN_KEY}); allowed: a fraction in "
+                             "[0, 1] (1 = never warn)")
         # several processes (jax.distributed): every process runs the same loop, process 0 writes
         out = Path(out_dir) if out_dir is not None and jax.process_index() == 0 else None
         if restart and overwrite:
@@ -207,7 +219,9 @@ class Simulation:
                                  f"{last.get('t')}, step {last.get('step')}) is not the checkpoint's (t = "
                                  f"{float(ck.t)}, step {int(ck.step)}); allowed: the folder as the run left it")
             carry = Carry(ck.particles, jnp.asarray(ck.t), jnp.asarray(ck.step), jnp.asarray(Status.OK, jnp.int32),
-                          jnp.asarray(-1, jnp.int32), jnp.asarray(ck.dt_last), jnp.asarray(ck.mood))
+                          jnp.asarray(-1, jnp.int32), jnp.asarray(ck.dt_last), jnp.asarray(ck.mood),
+                          fallback.initial_degrees(ck.particles.n) if ck.degree is None else jnp.asarray(ck.degree),
+                          fallback.initial_stats() if ck.fallback is None else jnp.asarray(ck.fallback))
             series, vel_prev, t_prev, first = list(ck.series), np.asarray(ck.vel_prev), ck.t_prev, ck.next_target
             steady = ck.steady
             wall_before, compile_before = ck.wall_time_s, ck.compile_time_s
@@ -220,8 +234,6 @@ class Simulation:
             if out is not None and pb.config is not None:
                 io.write_config(out, pb.config)
             carry = initial_carry(pb.particles)
-            if writer:
-                writer.write(0.0, snapshot_fields(pb.particles, pb.params, pb.scheme), attrs={"step": 0})
             series = []
             if pb.diagnostics is not None:
                 series.append({"t": 0.0, **pb.diagnostics(pb.particles, 0.0, pb.params)})
@@ -233,6 +245,10 @@ class Simulation:
             geom = self._geom(carry.particles.replace(x=jnp.asarray(geom_src[0]), vol=jnp.asarray(geom_src[1])))
         else:
             geom = self._geom(carry.particles)
+        if writer and not restart:   # degrees at t = 0: the Eulerian geometry's (moving particles: -1, no step yet)
+            deg0 = carry.degree if geom is None else self._host(geom.degree)
+            writer.write(0.0, {**snapshot_fields(pb.particles, pb.params, pb.scheme),
+                               **fallback.snapshot_fields(deg0, pb.scheme)}, attrs={"step": 0})
         params = self._place(pb.params)
         compile_time = chunk_time = 0.0
         memory = {}
@@ -248,12 +264,22 @@ class Simulation:
                 regrowths=self._regrowths, regrowth_log=self.regrowth_log, series=series, vel_prev=vel_prev,
                 t_prev=t_prev, steady=steady, settings=settings, config=config, case=pb.case, status=status,
                 wall_time_s=wall_before + time.perf_counter() - t_wall0,
-                compile_time_s=compile_before + compile_time))
+                compile_time_s=compile_before + compile_time, degree=np.asarray(self._host(carry.degree)),
+                fallback=np.asarray(carry.fallback)))
 
         def snapshot():
             if writer and int(carry.step) != int(writer.snapshot_attrs(writer.count - 1).get("step", -1)):
-                writer.write(float(carry.t), snapshot_fields(self._host(carry.particles), pb.params, pb.scheme),
+                writer.write(float(carry.t), {**snapshot_fields(self._host(carry.particles), pb.params, pb.scheme),
+                                              **fallback.snapshot_fields(self._host(carry.degree), pb.scheme)},
                              attrs={"step": int(carry.step)})
+
+        warned = set()
+
+        def warn_fallback():   # once per statistic, at the output time it first exceeds the threshold
+            for key, msg in fallback.exceeded(np.asarray(carry.fallback), pb.scheme, thr):
+                if key not in warned:
+                    warned.add(key)
+                    warnings.warn(DegreeFallbackWarning(f"{msg} (by t = {float(carry.t):.6g})"), stacklevel=3)
 
         bar = _progress(pb.t_end, progress, t0=float(carry.t))
         status, failure, interrupted = "ok", None, None
@@ -308,6 +334,7 @@ class Simulation:
                         status = "interrupted"
                         break
                     snapshot()
+                    warn_fallback()
                     t = float(carry.t)
                     host = self._host(carry.particles)
                     if pb.diagnostics is not None:
@@ -329,6 +356,7 @@ class Simulation:
         if failure is not None or interrupted is not None:   # the carry holds the last good state
             snapshot()
             checkpoint(index, status)
+            warn_fallback()
         final = self._host(carry.particles)
         metrics = dict(pb.metrics(final, float(carry.t), pb.params)) if (pb.metrics and failure is None) else {}
         wall_total, compile_total = wall_before + wall, compile_before + compile_time
@@ -350,6 +378,8 @@ class Simulation:
             summary["restarted_from"] = restarted_from
         if pb.scheme.component("limiter").summary_key == "mood":
             summary["mood"] = mood_summary(carry)
+        if any(d is not None for d in fallback.nominal_degrees(pb.scheme)):
+            summary["degree_fallback"] = fallback.summary(carry.fallback, pb.scheme, thr)
         if series:
             summary["timeseries"] = {k: [row[k] for row in series] for k in series[0]}
             if out is not None:
@@ -567,7 +597,8 @@ def run_problem(problem: Problem, cfg: Mapping | None = None, out_dir=None, quie
                      cfl_viscous=tcfg.get("cfl_viscous", 0.125), devices=(cfg or {}).get("run", {}).get("devices", 1),
                      precision=(cfg or {}).get("run", {}).get("precision", "float64"))
     return sim.run(out_dir, snapshots=ocfg.get("snapshots", 10), progress=ocfg.get("progress", True) and not quiet,
-                   plots=ocfg.get("plots", True), overwrite=overwrite, restart=restart)
+                   plots=ocfg.get("plots", True), overwrite=overwrite, restart=restart,
+                   degree_fallback_warn=ocfg.get("degree_fallback_warn", fallback.DEFAULT_WARN))
 
 
 def restart(out_dir, overrides=(), quiet: bool = False) -> Result:

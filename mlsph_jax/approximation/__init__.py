@@ -15,7 +15,8 @@ for the approximations of SPEC §4 and §11 (the thesis' Table 5.1 and the setti
 * ``corrected`` — Shepard-normalised kernel values with the Randles–Libersky / Bonet–Lok
   renormalised gradient grad N_j(x_i) = B_i grad W_ij V_j, B_i = (sum_j V_j grad W_ij (x_j -
   x_i)^T)^{-1}, and grad N_i(x_i) = -sum_{j != i} grad N_j(x_i) (B98 eq. 67-70, thesis eq. 5.108);
-  exact for linear fields; falls back to the plain kernel gradient where B_i is singular.
+  exact for linear fields; falls back to the plain kernel gradient where B_i is singular
+  (``degree`` 0 there, 1 elsewhere).
 * ``mls``       — moving least squares of degree 0..3 (see :mod:`.mls`), full or fixed-centre
   derivative, per-particle fallback to lower degrees, and the per-particle polynomial
   coefficients for evaluating fitted fields anywhere near the particle (:func:`fit`,
@@ -88,7 +89,9 @@ class ShapeOperators:
     values[N, K], gradients[N, K, d]: N_j(x_i) and grad N_j(x_i) for j = idx[i, k] (zero on
     padding); coeffs[N, m, K] (MLS only, else None): fixed-centre coefficients C_i so that the
     fitted polynomial of stencil data u is p((y - x_i)/h_i)^T C_i u_S; h[N]: smoothing length of
-    each particle (gather); degree[N]: active MLS degree after fallback (-1 for kernel methods).
+    each particle (gather); degree[N]: the degree the gradients reproduce at each particle after
+    fallback: MLS the active degree (:mod:`.mls`), ``corrected`` 1 (renormalised gradient) or 0
+    (kernel-gradient fallback), ``kernel`` -1 (none; :mod:`mlsph_jax.fallback`).
     """
 
     values: jax.Array
@@ -242,7 +245,7 @@ def _kernel_operators(dx, h, vol, idx, mask, spec: ApproxSpec, corrected: bool) 
     g = jnp.where(is_self[..., None], 0.0, g)
     g = g - is_self[..., None] * jnp.sum(g, axis=1, keepdims=True)
     g = jnp.where(good[:, None, None], g, kgrad - is_self[..., None] * jnp.sum(kgrad, axis=1, keepdims=True))
-    return ShapeOperators(values, g, None, h, none_deg)
+    return ShapeOperators(values, g, None, h, good.astype(jnp.int32))   # 1 renormalised, 0 kernel fallback
 
 
 @dataclasses.dataclass(frozen=True)
@@ -255,6 +258,10 @@ class MLSApproximation:
 
     def basis_degree(self, degree: int) -> int:
         return self.fixed_degree if self.fixed_degree is not None else degree
+
+    def nominal_degree(self, degree: int) -> int:
+        """Degree of the shape functions without fallback (:mod:`mlsph_jax.fallback`)."""
+        return self.basis_degree(degree)
 
     def build(self, dx, h, vol, idx, mask, spec: ApproxSpec, coeffs_only: bool = False) -> ShapeOperators:
         return _mls_operators(dx, h, vol, idx, mask, spec, coeffs_only)
@@ -270,6 +277,10 @@ class KernelApproximation:
 
     def basis_degree(self, degree: int) -> None:
         return None
+
+    def nominal_degree(self, degree: int) -> int | None:
+        """Degree the gradient reproduces without fallback: 1 (``corrected``), none (``kernel``)."""
+        return 1 if self.corrected else None
 
     def build(self, dx, h, vol, idx, mask, spec: ApproxSpec, coeffs_only: bool = False) -> ShapeOperators:
         return _kernel_operators(dx, h, vol, idx, mask, spec, self.corrected)
