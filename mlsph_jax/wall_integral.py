@@ -223,6 +223,23 @@ class BoundaryIntegralWalls:
         fv = jax.ops.segment_sum(-tn * bp.dgamma[:, None], bp.curve, nc)
         return fp + fv, fp
 
+    def coefficients(self, p: Particles, params, scheme, *, rho_inf, u_inf, length, curve: str):
+        """Force coefficients of ``curve`` (jnp, differentiable; SPEC §5.8): ``cd``, ``cl`` (the
+        force along and across the free stream ``u_inf[d]``, over 1/2 rho_inf |u_inf|^2
+        ``length``) and their pressure parts ``cd_pressure``, ``cl_pressure``."""
+        names = [c.name for c in self.curves]
+        if curve not in names:
+            raise InputError(f"unknown curve={curve!r}; allowed: {', '.join(names)}")
+        k = names.index(curve)
+        total, pressure = self.forces(p, params, scheme)
+        u = jnp.asarray(u_inf, total.dtype)
+        speed = jnp.linalg.norm(u)
+        e_d = u / speed
+        e_l = jnp.stack([-e_d[1], e_d[0]])
+        q = 0.5 * rho_inf * speed ** 2 * length
+        return {"cd": total[k] @ e_d / q, "cl": total[k] @ e_l / q,
+                "cd_pressure": pressure[k] @ e_d / q, "cl_pressure": pressure[k] @ e_l / q}
+
     # -- the in-run checks -------------------------------------------------------------------
     def band_status(self, p: Particles):
         """``(bits, particle)``: WALL_CROSSED for a fluid particle beyond a wall of the set-up
