@@ -274,3 +274,19 @@ def test_couette_matches_the_exact_series_at_least_as_well_as_mirror_ghosts():
     assert bi["linf_u_error"] < 0.02 and bi["max_abs_v"] < 1e-12
     # the plates exchange momentum with the fluid: reported as such, not as a drift of the scheme
     assert sbi["conservation_info"]["label"] == "change (boundary fluxes)" and abs(sbi["conservation"]["mass"]) < 1e-12
+
+
+SHIFT_MASS = pytest.mark.xfail(strict=True, reason=(
+    "known defect (docs/architecture.md decision 53): the xu shifting drift of the wall rows (one-sided "
+    "neighbourhoods) points at the wall, and with the self term the mass changes by sum_i rho_i (u_i - w_i) . "
+    "d_i, d_i the wall rows' quadrature defect: measured 3.7e-3 at t = 1 (L-inf 0.0155)"))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("frame", ["lagrangian", pytest.param("ale_shift", marks=SHIFT_MASS)])
+def test_couette_on_moving_particles(frame):
+    """The same walls on moving particles (no ghosts to keep in step): measured, ny = 10, t = 1,
+    Lagrangian: L-inf 0.0166 (mirror ghosts 0.0512), mass change 1e-14, max |v| 3.6e-4."""
+    s = _channel_run("configs/couette.toml", "boundary_integral", "case.ny=10", "time.t_end=1.0",
+                     f"scheme.frame={frame}")
+    assert s["status"] == "ok" and s["metrics"]["linf_u_error"] < 0.02 and abs(s["conservation"]["mass"]) < 1e-12
