@@ -9,12 +9,16 @@ sum_j N_j(x_b) = 1) gives the term added to the left-hand side of eq. 4.36 (SPEC
     B_i = sum_b dGamma_b N_i(x_b) [F_b - s F_i] . n_b,        s = ``scheme.self_flux``,
 
 with F = F_w - D the total (ALE convective minus diffusive) flux, N_i(x_b) the MLS shape
-function of particle i evaluated at x_b over the particles around x_b (degree ``scheme.degree``,
-smoothing length h_b = beta V^(1/d) of the particle nearest to x_b), and
+function of particle i evaluated at x_b over the particles around x_b (linear,
+:data:`WALL_STATE_DEGREE`; smoothing length h_b = beta V^(1/d) of the particle nearest to x_b),
+and
 
-* F_b . n_b = (0, p_b n_b - tau_b n_b, p_b u_w.n_b - (tau_b n_b).u_w): no mass through the wall
-  (the wall moves with its own normal velocity u_w.n_b), p_b = sum_j N_j(x_b) p_j the MLS
-  interpolant of the pressure, tau_b the viscous stress at the wall (adiabatic: no heat flux);
+* F_b . n_b = (0, p* n_b - tau_b n_b, p* u_w.n_b - (tau_b n_b).u_w): no mass through the wall
+  (the wall moves with its own normal velocity u_w.n_b); p* = p_b + rho_b vn (vn + |vn| + c_b)
+  the pressure of the Rusanov flux between the wall state (rho, u, p, c)_b = sum_j N_j(x_b)
+  (rho, u, p, c)_j and its mirror image, vn = (u_b - u_w) . n_b (SPEC §5.8's Riemann
+  alternative; it damps wall-normal acoustic modes); tau_b the viscous stress at the wall
+  (adiabatic: no heat flux);
 * no-slip walls: tau_b from the velocity gradient of a fixed-centre MLS fit at x_b of degree
   ``scheme.fit_degree`` *constrained* to pass through the wall velocity, u(x_b) = u_w (the
   constant coefficient is u_w; the others are the weighted least-squares fit of u_j - u_w);
@@ -26,6 +30,9 @@ the particles, with s = 0 the boundary terms give exactly the wall fluxes sum_b 
 dGamma_b (no mass crosses a wall, to round-off); with s = 1 they cancel the interior self terms
 -F_i . sum_j A_ij = F_i . sum_j V_j grad N_i(x_j) ~ F_i . int_dOmega N_i n up to the quadrature
 defect of SPEC §5.5, and a uniform state on the walls' own velocity stays uniform exactly.
+Known limit: the wall rows are not linearly consistent (the residual of an exact steady
+Poiseuille profile is O(1) in the three rows next to a wall at every resolution), so wall-
+bounded errors converge at second order (docs/validation.md).
 
 Stencils: every stage, each x_b takes the ``capacity`` nearest non-ghost particles within the
 kernel support 2 h_b (a brute-force O(N_b N) distance pass; fine for 2D walls and bodies with
