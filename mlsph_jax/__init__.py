@@ -17,6 +17,7 @@ if _os.environ.get("MLSPH_JAX_FLOAT32", "0") != "1":
 
 __version__ = "0.1.0"
 
+from . import wall_integral as _wall_integral  # noqa: E402,F401  (registers the boundary_integral wall treatment)
 from .errors import (  # noqa: E402
     ConfigError,
     InputError,

@@ -41,9 +41,11 @@ from .errors import InputError
 from .registry import Registry
 from .state import Kind, Params, Particles
 
-#: Wall treatments (registry ``boundary``): ``setup(p_fluid, walls, band, params, eos) -> (particles,
-#: boundary)`` appends whatever the treatment needs to the fluid particles and returns the object
-#: whose ``apply(particles, params)`` the integrator calls before every stage and after each step.
+#: Wall treatments (registry ``boundary``): ``setup(p_fluid, walls, band, params, eos, *, scheme,
+#: domain) -> (particles, boundary)`` appends whatever the treatment needs to the fluid particles and
+#: returns the object whose ``apply(particles, params)`` the integrator calls before every stage and
+#: after each step (``mirror_ghosts`` here; ``boundary_integral`` in :mod:`mlsph_jax.wall_integral`,
+#: whose object also adds ``wall_terms`` to the right-hand side).
 BOUNDARIES: Registry = Registry("boundary", protocol=("setup",), doc="wall treatments")
 
 
@@ -215,7 +217,9 @@ class MirrorGhosts:
     """Mirror-ghost walls (module docstring; thesis eq. 3.22): :func:`with_ghosts`."""
 
     @staticmethod
-    def setup(p_fluid: Particles, walls: list[Wall], band: float, params: Params, eos: str):
+    def setup(p_fluid: Particles, walls: list[Wall], band: float, params: Params, eos: str, *, scheme=None,
+              domain=None):
+        """:func:`with_ghosts` (``scheme`` and ``domain`` are not needed by mirror ghosts)."""
         return with_ghosts(p_fluid, walls, band, params, eos)
 
 

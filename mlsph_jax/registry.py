@@ -130,7 +130,7 @@ def all_registries() -> dict[str, Registry]:
 def _import_components() -> None:
     import importlib
 
-    for mod in ("scheme", "cases", "boundaries"):
+    for mod in ("scheme", "cases", "boundaries", "wall_integral", "geometry"):
         importlib.import_module(f"{__package__}.{mod}")
 
 

@@ -238,6 +238,12 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme, bo
         dvol, dxdt = jnp.zeros_like(vol), jnp.zeros_like(x)
     else:
         dvol = sums[:, nv + d]
+    # ---- boundary-integral walls (thesis eq. 4.24, SPEC §5.8; mlsph_jax/wall_integral.py) ----
+    if getattr(boundary, "wall_terms", None) is not None:
+        bq, bvol = boundary.wall_terms(particles, params, geom, scheme, U, prim, w)
+        dq = dq - bq
+        dvol = dvol if eulerian else dvol + bvol
+    # ---- end of the boundary-integral walls ----
     return (jnp.where(fluid, dxdt, 0.0), jnp.where(fluid[:, 0], dvol, 0.0), jnp.where(fluid, dq, 0.0))
 
 

@@ -360,7 +360,8 @@ class Simulation:
         final = self._host(carry.particles)
         metrics = dict(pb.metrics(final, float(carry.t), pb.params)) if (pb.metrics and failure is None) else {}
         wall_total, compile_total = wall_before + wall, compile_before + compile_time
-        conservation, conservation_info = _conservation(totals0, conserved_totals(final), pb.particles, final)
+        conservation, conservation_info = _conservation(totals0, conserved_totals(final), pb.particles, final,
+                                                        walls=getattr(pb.boundary, "wall_terms", None) is not None)
         if pb.params is not None and "physics.body_force" in pb.params and \
                 np.any(np.asarray(pb.params["physics.body_force"]) != 0):
             conservation_info["label"] = "change (boundary fluxes, body force)"
@@ -530,7 +531,8 @@ def mood_summary(carry: Carry) -> dict[str, float]:
             "unresolved_stages": int(st["unresolved_stages"])}
 
 
-def _conservation(tot0: np.ndarray, tot1: np.ndarray, p0: Particles, p1: Particles) -> tuple[dict, dict]:
+def _conservation(tot0: np.ndarray, tot1: np.ndarray, p0: Particles, p1: Particles,
+                  walls: bool = False) -> tuple[dict, dict]:
     """Relative change of total mass, momentum (per component) and energy, and how it reads.
 
     ``(final - initial) / scale`` with scale = |initial total| for mass and energy; for a
@@ -540,7 +542,8 @@ def _conservation(tot0: np.ndarray, tot1: np.ndarray, p0: Particles, p1: Particl
     is never round-off divided by round-off.  The second dict (``summary["conservation_info"]``)
     holds the scales and the label: ``"drift"`` in a closed (periodic) domain, where any change
     is an error of the scheme, ``"change (boundary fluxes)"`` when walls, ghosts, frozen ends or
-    boundary particles exchange mass, momentum or energy with the fluid, or a body force acts.
+    boundary particles exchange mass, momentum or energy with the fluid, or a body force acts
+    (``walls``: boundary-integral walls, which need no particles, do too).
     """
     d = p1.dim
     mass0 = abs(float(tot0[0]))
@@ -554,7 +557,7 @@ def _conservation(tot0: np.ndarray, tot1: np.ndarray, p0: Particles, p1: Particl
         scales["energy"] = abs(float(tot0[-1]))
     idx = {"mass": 0, **{f"momentum_{n}": 1 + a for a, n in zip(range(d), "xyz", strict=False)}, "energy": d + 1}
     out = {k: float((tot1[idx[k]] - tot0[idx[k]]) / max(sc, 1e-300)) for k, sc in scales.items()}
-    open_ = bool(np.any(np.asarray(p0.kind) != int(Kind.FLUID)))
+    open_ = walls or bool(np.any(np.asarray(p0.kind) != int(Kind.FLUID)))
     return out, {"label": "change (boundary fluxes)" if open_ else "drift", "scales": scales}
 
 

@@ -47,6 +47,8 @@ class Status(enum.IntFlag):
     DT_ABOVE_CFL = 256
     MOOD_UNRESOLVED = 512
     GHOST_BAND = 1024
+    WALL_CROSSED = 2048
+    BOUNDARY_OVERFLOW = 4096
     #: any neighbour-list overflow (the three neighbour bits)
     NEIGHBOR_OVERFLOW = NEIGHBOR_OVERFLOW_ROW | NEIGHBOR_OVERFLOW_CELL | NEIGHBOR_OVERFLOW_REACH
 
@@ -78,6 +80,10 @@ _DESCRIPTIONS = {
     Status.DT_ABOVE_CFL: "fixed time step above the CFL limit of the current state",
     Status.GHOST_BAND: ("a fluid particle entered the ghost band of a mirror wall it has no ghost across (ghosts "
                         "are assigned at setup; mirror walls need flows parallel to the walls or Eulerian particles)"),
+    Status.WALL_CROSSED: ("a fluid particle crossed a boundary-integral wall (inside a body, outside a container or "
+                          "beyond a wall segment; nothing keeps moving particles in the fluid but the wall pressure)"),
+    Status.BOUNDARY_OVERFLOW: ("a boundary-integral wall point has more particles within its support than the stencil "
+                               "capacity sized at set-up (the particles crowded against a wall)"),
     Status.DT_UNDERFLOW: "time step underflow (below time.dt_min * t_end)",
     Status.NEIGHBOR_OVERFLOW_ROW: "neighbour-list overflow: a particle has more neighbours than the row capacity",
     Status.NEIGHBOR_OVERFLOW_CELL: "neighbour-list overflow: a cell holds more particles than the cell capacity",

@@ -101,3 +101,29 @@ def viscous_terms(prim, geom, scheme, params, degree: int):
         D_pair = D_pair - D_i[:, None]
     D_pair = jnp.where(geom.pair_mask[..., None, None], D_pair, 0.0)
     return jnp.einsum("nkvd,nkd->nv", D_pair, geom.A)
+
+
+def particle_flux(prim, geom, scheme, params):
+    """D_i ``[N, nv, d]``: the diffusive flux of every particle from its own fixed-centre fit's
+    gradient at x_i and its own velocity (the self term of :func:`viscous_terms`; used by the
+    boundary-integral walls, :mod:`mlsph_jax.wall_integral`)."""
+    eos = get_eos(scheme.eos)
+    vel = prim.vel
+    d = vel.shape[1]
+    heat = scheme.heat_conduction and eos.has_energy
+    f = jnp.concatenate([vel] + ([prim.e[:, None]] if heat else []), axis=1)
+    a = jnp.einsum("nmk,nkc->nmc", geom.coeffs, f[geom.jsafe])
+    dP0 = jnp.asarray(basis.gradient_at_origin(scheme.fit_degree, d), geom.h.dtype) / geom.h[:, None, None]
+    grad0 = jnp.einsum("nmd,nmc->ncd", dP0, a)
+    mu = params["physics.mu"] if scheme.viscous else 0.0
+    kappa = params["physics.kappa"] if heat else 0.0
+    return _flux_tensor(grad0[:, :d, :], vel, grad0[:, d, :] if heat else None, mu, kappa, scheme.stress,
+                        eos.has_energy, d)
+
+
+def wall_flux(G, u_wall, mu, scheme):
+    """Diffusive flux ``[..., nv, d]`` at a no-slip adiabatic wall point from the velocity gradient
+    ``G[..., d, d]`` of a fit that passes through the wall velocity ``u_wall[..., d]`` (no heat
+    flux through the wall)."""
+    eos = get_eos(scheme.eos)
+    return _flux_tensor(G, u_wall, None, mu, 0.0, scheme.stress, eos.has_energy, G.shape[-1])

@@ -48,6 +48,7 @@ from ..errors import ConfigError
 from ..kernels import get_kernel
 from ..plotting import colormap, subplots
 from ..reference.viscous import channel_startup, channel_steady, channel_u_max
+from ..registry import names_of
 from ..schema import Key, join_problems, show
 from ..simulation import Problem
 from ..state import Domain, Kind, Params, Particles, make_particles
@@ -60,7 +61,8 @@ def check_channel(cfg: dict) -> None:
     """`eos.kind` must be tait and physics.mu > 0 (the exact start-up solution has nu =
     physics.mu / eos.rho0). `physics.body_force` must be empty or [f_x, 0.0] (a force along the
     plates; a wall-normal force would need a hydrostatic wall treatment). The flow must be
-    driven: `u_plate` != 0 or f_x != 0. The period `nx` dx must exceed the kernel support
+    driven: `u_plate` != 0 or f_x != 0. Boundary-integral walls (`walls`) need `scheme.method`
+    = mlsph_ale. The period `nx` dx must exceed the kernel support
     diameter 2 kappa beta dx (minimum-image neighbour search), i.e. `nx` > 2 kappa beta (6 for
     mlsph_ale with the cubic spline, 8 for sph_ale)."""
     c, eos, phys = cfg["case"], cfg["eos"], cfg["physics"]
@@ -82,6 +84,10 @@ def check_channel(cfg: dict) -> None:
         problems.append(f"invalid case.u_plate={show(c['u_plate'])} with physics.body_force="
                         f"{show(bf)}: nothing drives the flow; allowed: u_plate != 0 (Couette) "
                         "or physics.body_force = [f_x, 0.0] with f_x != 0 (Poiseuille)")
+    if c["walls"] == "boundary_integral" and cfg["scheme"]["method"] != "mlsph_ale":
+        problems.append(f"invalid case.walls={show(c['walls'])} with scheme.method="
+                        f"{show(cfg['scheme']['method'])}: the boundary term of thesis eq. 4.24 is derived for "
+                        "MLS shape functions; allowed: scheme.method = \"mlsph_ale\" or case.walls = \"mirror_ghosts\"")
     reach = 2.0 * get_kernel(cfg["scheme"]["kernel"]).support * effective_beta(cfg["scheme"])
     if not c["nx"] > reach:
         problems.append(f"invalid case.nx={c['nx']}: the period nx dx must exceed the kernel "
@@ -103,6 +109,10 @@ def _channel_keys(u_plate: float) -> dict[str, Key]:
         "u_plate": Key(float, u_plate, unit="m/s",
                        doc="velocity of the top plate (y = L) along x, switched on at t = 0 "
                            "(the bottom plate is fixed); thesis Couette: 1"),
+        "walls": Key(str, "mirror_ghosts", choices=names_of("boundary"),
+                     doc="wall treatment of both plates: mirror ghosts (thesis eq. 3.22) or the "
+                         "boundary integral of thesis eq. 4.24 (no ghosts; needs scheme.method = "
+                         "\"mlsph_ale\"; docs/architecture.md decision 54)"),
     }
 
 
@@ -141,8 +151,9 @@ def _build(cfg: Mapping) -> Problem:
     pf = make_particles(x, np.full(n, dx * dx), U, ppd=np.full(n, scheme.reconstruction_degree))
     band = scheme.support * scheme.beta * dx   # support radius: every fluid stencil is complete
     plates = [Wall(1, 0.0, 1), Wall(1, gap, -1)]
-    particles, walls = BOUNDARIES.get("mirror_ghosts").setup(pf, plates, band, params, scheme.eos)
     domain = Domain((0.0, -band - dx), (nx * dx, gap + band + dx), (True, False))
+    particles, walls = BOUNDARIES.get(c["walls"], "case.walls").setup(pf, plates, band, params, scheme.eos,
+                                                                      scheme=scheme, domain=domain)
     d = drives(cfg)
     u_max = channel_u_max(**d)
 

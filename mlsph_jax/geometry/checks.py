@@ -1,0 +1,144 @@
+"""Set-up checks of boundary geometry (host side; every failure an :class:`InputError` naming
+the key and the value), and the point tests shared with the in-run wall-crossing check.
+
+* a closed curve must not intersect itself (``geometry.<name>``);
+* curves must not cross or contain each other (segments may touch at their end points, e.g. the
+  corners of a box), and closed bodies must lie strictly inside the domain box;
+* no fluid particle may be inside a body (outside a container) or beyond a wall segment;
+* the quadrature must resolve the particles: dGamma_b <= ``max_spacing_ratio`` times the local
+  particle spacing V^(1/d) of the fluid particle nearest to x_b (the thesis' cylinder has 120
+  wall points for 120 particles on the first ring, ratio 1).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import InputError
+from ..state import Kind, Params
+
+
+def cross2(a, b):
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
+def inside_polygon(p, poly, xp=np):
+    """Even-odd test: whether each point ``p[N, 2]`` is inside the closed polygon ``poly[M, 2]``
+    (``xp``: numpy or jax.numpy)."""
+    a, b = poly, xp.roll(poly, -1, axis=0)
+    y = p[:, None, 1]
+    straddle = (a[None, :, 1] > y) != (b[None, :, 1] > y)
+    dy = b[:, 1] - a[:, 1]
+    xc = a[None, :, 0] + (y - a[None, :, 1]) * (b[:, 0] - a[:, 0])[None] / xp.where(dy == 0, 1.0, dy)[None]
+    hits = straddle & (p[:, None, 0] < xc)
+    return (xp.sum(hits, axis=1) % 2) == 1
+
+
+def beyond_segment(p, a, b, band, xp=np):
+    """Whether each point ``p[N, 2]`` lies on the wall side (right of a -> b) of the segment,
+    within its span and closer than ``band`` to its line."""
+    t = b - a
+    length = xp.sqrt(xp.sum(t * t))
+    u = xp.sum((p - a) * t, axis=-1) / (length * length)
+    depth = -cross2(t, p - a) / length            # > 0: right of a -> b, i.e. beyond the wall
+    return (u >= 0) & (u <= 1) & (depth >= 0) & (depth < band)
+
+
+def _edges(poly, closed):
+    a = poly if closed else poly[:-1]
+    b = np.roll(poly, -1, axis=0) if closed else poly[1:]
+    return a, b
+
+
+def _crossings(a1, b1, a2, b2):
+    """Proper crossings [M1, M2] of the segments (a1, b1) and (a2, b2) (touching is not one)."""
+    d1, d2 = b1 - a1, b2 - a2
+    o1 = cross2(d1[:, None], a2[None] - a1[:, None])
+    o2 = cross2(d1[:, None], b2[None] - a1[:, None])
+    o3 = cross2(d2[None], a1[:, None] - a2[None])
+    o4 = cross2(d2[None], b1[:, None] - a2[None])
+    return (o1 * o2 < 0) & (o3 * o4 < 0)
+
+
+def outline(curve, params: Params) -> np.ndarray:
+    """The polygon used by the checks: a segment's end points, a polygon's vertices, else the
+    quadrature points (in order)."""
+    if not curve.closed:
+        return np.asarray([params[curve.key("start")], params[curve.key("end")]], float)
+    if curve.key("vertices") in params:
+        return np.asarray(params[curve.key("vertices")], float)
+    return np.asarray(curve.points(params)[0], float)
+
+
+def check_geometry(curves, params: Params, x, vol, kind=None, domain=None, max_spacing_ratio: float = 1.0) -> None:
+    """Refuse bad geometry (module docstring); ``x``, ``vol``, ``kind``: the particles (only fluid
+    particles are tested), ``domain``: the :class:`~mlsph_jax.state.Domain` (closed bodies must lie
+    strictly inside its box)."""
+    x, vol = np.asarray(x, float), np.asarray(vol, float)
+    fluid = np.ones(len(x), bool) if kind is None else np.asarray(kind) == int(Kind.FLUID)
+    xf, vf = x[fluid], vol[fluid]
+    outl = [outline(c, params) for c in curves]
+    for c, poly in zip(curves, outl, strict=True):
+        if c.closed:
+            a, b = _edges(poly, True)
+            hit = _crossings(a, b, a, b)
+            m = len(a)
+            i, j = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
+            hit &= (np.abs(i - j) > 1) & (np.abs(i - j) < m - 1)
+            if hit.any():
+                k = np.argwhere(hit)[0]
+                raise InputError(f"invalid geometry.{c.name}: the curve intersects itself (edges {k[0]} and {k[1]} "
+                                 f"cross near x={np.round(a[k[0]], 6).tolist()}); allowed: a simple closed curve")
+        if domain is not None and c.closed:
+            lo, hi = np.asarray(domain.lower), np.asarray(domain.upper)
+            out = np.any((poly <= lo) | (poly >= hi), axis=1)
+            if out.any():
+                p = poly[np.argmax(out)]
+                raise InputError(f"invalid geometry.{c.name}: the body reaches x={np.round(p, 6).tolist()} on or "
+                                 f"beyond the domain edge (box {list(domain.lower)} .. {list(domain.upper)}); "
+                                 "allowed: closed bodies strictly inside the domain")
+    for ia in range(len(curves)):
+        for ib in range(ia + 1, len(curves)):
+            ca, cb = curves[ia], curves[ib]
+            hit = _crossings(*_edges(outl[ia], ca.closed), *_edges(outl[ib], cb.closed))
+            nested = ((ca.closed and inside_polygon(outl[ib][:1], outl[ia])[0])
+                      or (cb.closed and inside_polygon(outl[ia][:1], outl[ib])[0]))
+            if hit.any() or nested:
+                raise InputError(f"invalid geometry.{cb.name}: it overlaps geometry.{ca.name}; allowed: curves that "
+                                 "neither cross nor contain each other (segments may share end points)")
+    for c, poly in zip(curves, outl, strict=True):
+        if c.closed:
+            inside = inside_polygon(xf, poly)
+            bad = inside if c.fluid == "outside" else ~inside
+            what = "inside the body" if c.fluid == "outside" else "outside the container"
+        else:
+            band = np.inf
+            bad = beyond_segment(xf, poly[0], poly[1], band)
+            what = "beyond the wall"
+        if bad.any():
+            i = int(np.flatnonzero(fluid)[np.argmax(bad)])
+            raise InputError(f"invalid particle layout: fluid particle {i} at x={np.round(x[i], 6).tolist()} is {what} "
+                             f"geometry.{c.name} ({int(bad.sum())} particles); allowed: fluid particles on the fluid "
+                             "side only")
+    _check_spacing(curves, params, xf, vf, max_spacing_ratio)
+
+
+def _check_spacing(curves, params, xf, vf, ratio_max):
+    d = xf.shape[1]
+    for c in curves:
+        xb, dg = (np.asarray(a) for a in c.points(params)[:2])
+        r2 = np.sum((xb[:, None, :] - xf[None]) ** 2, axis=-1)
+        spacing = vf[np.argmin(r2, axis=1)] ** (1.0 / d)
+        ratio = dg / spacing
+        worst = float(ratio.max())
+        if worst > ratio_max * (1 + 1e-9):
+            if hasattr(c, "spacing"):
+                raise InputError(f"invalid geometry.{c.name}.spacing={c.spacing!r}: quadrature pieces up to "
+                                 f"{worst:.3g} particle spacings long; allowed: at most {ratio_max:g} (spacing <= "
+                                 f"{c.spacing * ratio_max / worst:.4g})")
+            need = int(math.ceil(c.n_points * worst / ratio_max))
+            raise InputError(f"invalid geometry.{c.name}.n_points={c.n_points}: quadrature pieces up to {worst:.3g} "
+                             f"particle spacings long, too sparse for the particles; allowed: at most {ratio_max:g} "
+                             f"spacings (n_points >= {need})")

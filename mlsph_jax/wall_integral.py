@@ -1,0 +1,348 @@
+"""Walls and bodies by the boundary integral of thesis eq. 4.24 (SPEC §5.8, §8.4): no ghosts.
+
+Thesis eq. 4.24 carries, for every pair, the boundary term
+B_ij = int_dOmega N_i N_j n dGamma.  With quadrature points x_b, lengths dGamma_b and normals n_b
+out of the fluid (:mod:`mlsph_jax.geometry`), B_ij ~ sum_b N_i(x_b) N_j(x_b) n_b dGamma_b, and
+replacing the pair average of the fluxes at x_b by the wall flux F_b (partition of unity,
+sum_j N_j(x_b) = 1) gives the term added to the left-hand side of eq. 4.36 (SPEC §5.8)
+
+    B_i = sum_b dGamma_b N_i(x_b) [F_b - s F_i] . n_b,        s = ``scheme.self_flux``,
+
+with F = F_w - D the total (ALE convective minus diffusive) flux, N_i(x_b) the MLS shape
+function of particle i evaluated at x_b over the particles around x_b (linear,
+:data:`WALL_STATE_DEGREE`; smoothing length h_b = beta V^(1/d) of the particle nearest to x_b),
+and
+
+* F_b . n_b = (0, p* n_b - tau_b n_b, p* u_w.n_b - (tau_b n_b).u_w): no mass through the wall
+  (the wall moves with its own normal velocity u_w.n_b); p* = p_b + rho_b vn (vn + |vn| + c_b)
+  the pressure of the Rusanov flux between the wall state (rho, u, p, c)_b = sum_j N_j(x_b)
+  (rho, u, p, c)_j and its mirror image, vn = (u_b - u_w) . n_b (SPEC §5.8's Riemann
+  alternative; it damps wall-normal acoustic modes); tau_b the viscous stress at the wall
+  (adiabatic: no heat flux);
+* no-slip walls: tau_b from the velocity gradient of a fixed-centre MLS fit at x_b of degree
+  ``scheme.fit_degree`` *constrained* to pass through the wall velocity, u(x_b) = u_w (the
+  constant coefficient is u_w; the others are the weighted least-squares fit of u_j - u_w);
+* free-slip walls: tau_b = 0.
+
+The volume of moving particles follows the same rule (thesis eq. 4.32 with the boundary term,
+the FVPM form T(5.67)): dV_i/dt += sum_b dGamma_b N_i(x_b) (u_w - s' w_i) . n_b.  Summed over
+the particles, with s = 0 the boundary terms give exactly the wall fluxes sum_b F_b . n_b
+dGamma_b (no mass crosses a wall, to round-off); with s = 1 they cancel the interior self terms
+-F_i . sum_j A_ij = F_i . sum_j V_j grad N_i(x_j) ~ F_i . int_dOmega N_i n up to the quadrature
+defect of SPEC §5.5, and a uniform state on the walls' own velocity stays uniform exactly.
+Known limit: the wall rows are not linearly consistent (the residual of an exact steady
+Poiseuille profile is O(1) in the three rows next to a wall at every resolution), so wall-
+bounded errors converge at second order (docs/validation.md).
+
+Stencils: every stage, each x_b takes the ``capacity`` nearest non-ghost particles within the
+kernel support 2 h_b (a brute-force O(N_b N) distance pass; fine for 2D walls and bodies with
+N_b of a few hundred, a cell-list search is the next step for 3D surfaces).  The set-up sizes
+the capacity; a stencil that outgrows it, or a fluid particle beyond a wall (inside a body,
+outside a container, past a segment within the support band), stops the run with
+``Status.BOUNDARY_OVERFLOW`` / ``Status.WALL_CROSSED`` (checked on every committed step against
+the set-up geometry).  Nothing *guarantees* that Lagrangian or shifted particles stay in the
+fluid: the wall pressure term pushes them back, and the check stops the run loudly when it
+does not (docs/architecture.md decision 54).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .approximation import basis, mls
+from .boundaries import BOUNDARIES
+from .eos import get_eos
+from .errors import InputError
+from .flux import ale_flux_dot
+from .geometry import Segment, check_geometry, curve_params, quadrature
+from .geometry.checks import beyond_segment, inside_polygon, outline
+from .kernels import get_kernel
+from .state import Kind, Params, Particles, minimum_image
+from .viscous import particle_flux, wall_flux
+
+#: MLS degree of the wall state (rho, u, p, c at x_b): linear.  Measured on the Couette start-up
+#: (ny = 10, CFL 0.6): with the quadratic MLS the extrapolating weights N_j(x_b) make the wall
+#: terms stiff (the acoustic damping rho c vn of the wall flux exceeds SSP-RK3's stability range
+#: at CFL 0.6, and without it the wall-normal velocity grows from 1e-14 to 0.4 by t = 10); the
+#: linear MLS keeps it at round-off at CFL 0.3 and 0.6 and is exact for hydrostatic pressure.
+WALL_STATE_DEGREE = 1
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class WallStencils:
+    """Particles around each quadrature point: ``idx[Nb, K]`` (valid where ``mask``), offsets
+    ``dx[Nb, K, d] = x_j - x_b``, smoothing lengths ``h[Nb]`` and the number ``count[Nb]`` of
+    particles within the support (> K: overflow)."""
+
+    idx: jax.Array
+    mask: jax.Array
+    dx: jax.Array
+    h: jax.Array
+    count: jax.Array
+
+
+def wall_stencils(x, vol, kind, xb, *, beta: float, support: float, capacity: int, box=None) -> WallStencils:
+    """The ``capacity`` nearest non-ghost particles within ``support * h_b`` of each ``xb``
+    (brute force over all particles; ``box = (lengths, periodic)`` for minimum images)."""
+    d = x.shape[1]
+    L, per = box if box is not None else (None, None)
+    r = minimum_image(x[None, :, :] - xb[:, None, :], L, per)             # [Nb, N, d]
+    r2 = jnp.where((kind != Kind.GHOST)[None, :], jnp.sum(r * r, axis=-1), jnp.inf)
+    r2s = jax.lax.stop_gradient(r2)
+    nearest = jnp.argmin(r2s, axis=1)
+    h = beta * vol[nearest] ** (1.0 / d)
+    within = r2s < jax.lax.stop_gradient(support * h)[:, None] ** 2
+    score, idx = jax.lax.top_k(jnp.where(within, -r2s, -jnp.inf), capacity)
+    mask = jnp.isfinite(score)
+    dx = jnp.take_along_axis(r, idx[..., None], axis=1)
+    return WallStencils(idx, mask, jnp.where(mask[..., None], dx, 0.0), h, jnp.sum(within, axis=1))
+
+
+def constrained_gradient(st: WallStencils, u, u_wall, kernel, degree: int):
+    """Gradient ``G[Nb, d, d]`` (G[a, c] = du_a/dx_c) at x_b of the weighted least-squares
+    polynomial of ``degree`` through ``u_wall[Nb, d]`` at x_b fitted to ``u[N, d]`` on the
+    stencil (the wall constraint u(x_b) = u_w of SPEC §5.8, imposed exactly)."""
+    d = st.dx.shape[-1]
+    xi = st.dx / st.h[:, None, None]
+    P = basis.evaluate(xi, degree)[..., 1:]                                   # [Nb, K, m-1]
+    w = kernel.w_vec(st.dx, st.h[:, None]) * st.mask
+    M = jnp.einsum("bk,bkm,bkn->bmn", w, P, P)
+    rhs = jnp.einsum("bk,bkm,bka->bma", w, P, u[st.idx] - u_wall[:, None, :])
+    coef = jnp.linalg.solve(M, rhs)                                           # [Nb, m-1, d]
+    g0 = jnp.asarray(basis.gradient_at_origin(degree, d)[1:], st.h.dtype)     # [m-1, d]
+    return jnp.einsum("mc,bma->bac", g0, coef) / st.h[:, None, None]
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class BoundaryIntegralWalls:
+    """Boundary-integral walls (module docstring): the ``curves`` (static), whether each is a
+    no-slip wall, the stencil capacity, the outlines of the set-up geometry used by the in-run
+    crossing check (closed outlines ``polys``, segments ``segments[S, 2, 2]``)."""
+
+    polys: tuple
+    segments: jax.Array
+    curves: tuple = dataclasses.field(metadata=dict(static=True))
+    no_slip: tuple = dataclasses.field(metadata=dict(static=True))
+    fluid_inside: tuple = dataclasses.field(metadata=dict(static=True))
+    capacity: int = dataclasses.field(metadata=dict(static=True))
+    beta: float = dataclasses.field(metadata=dict(static=True))
+    kernel: str = dataclasses.field(metadata=dict(static=True))
+    band: float = dataclasses.field(metadata=dict(static=True))
+    box: tuple | None = dataclasses.field(metadata=dict(static=True), default=None)
+    n_walls: int = dataclasses.field(metadata=dict(static=True), default=0)
+
+    # -- the geometry ------------------------------------------------------------------------
+    def default_params(self) -> dict:
+        """``geometry.*`` parameters of the curves at their construction values."""
+        return curve_params(self.curves)
+
+    def points(self, params):
+        """The :class:`~mlsph_jax.geometry.BoundaryPoints` for ``params`` (construction values
+        for ``geometry.*`` keys the Params do not hold; the first ``n_walls`` curves, made from
+        axis-aligned walls, move with ``boundary.wall_velocity[k]`` when the Params hold it, as
+        mirror walls do)."""
+        full = {**self.default_params(), **dict(params)}
+        if self.n_walls and "boundary.wall_velocity" in params:
+            for k in range(self.n_walls):
+                full[self.curves[k].key("velocity")] = params["boundary.wall_velocity"][k]
+        return quadrature(self.curves, Params(full))
+
+    def _box(self):
+        return None if self.box is None else (jnp.asarray(self.box[0]), jnp.asarray(self.box[1]))
+
+    def stencils(self, p: Particles, xb):
+        kern = get_kernel(self.kernel)
+        return wall_stencils(p.x, p.vol, p.kind, xb, beta=self.beta, support=kern.support,
+                             capacity=self.capacity, box=self._box())
+
+    def apply(self, p: Particles, params) -> Particles:
+        """Nothing to regenerate (no ghosts)."""
+        return p
+
+    # -- the wall fluxes ---------------------------------------------------------------------
+    def wall_state(self, p: Particles, params, scheme, prim):
+        """``(points, stencils, N_j(x_b)[Nb, K], p_b[Nb], tau_b n_b [Nb, d])`` for a state."""
+        bp = self.points(params)
+        st = self.stencils(p, bp.x)
+        kern = get_kernel(self.kernel)
+        vals, _, _, _ = mls.operators_block(st.dx, st.mask, st.h, kernel=kern, degree=WALL_STATE_DEGREE,
+                                            rcond=scheme.rcond, derivative="fixed_centre", with_coeffs=False)
+        interp = lambda f: jnp.einsum("bk,bk...->b...", vals, f[st.idx])  # noqa: E731
+        rho_b, c_b = interp(prim.rho), interp(prim.c)
+        vn = jnp.sum((interp(prim.vel) - bp.velocity) * bp.normal, axis=-1)       # into the wall
+        # Rusanov flux between the interpolated state and its mirror image across the wall:
+        # no mass, momentum (p + rho vn (vn + |vn| + c)) n  (SPEC §5.8, the Riemann alternative)
+        pb = interp(prim.p) + rho_b * vn * (vn + jnp.abs(vn) + c_b)
+        tn = jnp.zeros_like(bp.x)
+        if scheme.viscous and any(self.no_slip):
+            G = constrained_gradient(st, prim.vel, bp.velocity, kern, scheme.fit_degree)
+            D = wall_flux(G, bp.velocity, params["physics.mu"], scheme)          # [Nb, nv, d]
+            noslip = jnp.asarray(self.no_slip)[bp.curve]
+            d = bp.x.shape[1]
+            tn = jnp.where(noslip[:, None], jnp.einsum("bad,bd->ba", D[:, 1:1 + d, :], bp.normal), 0.0)
+        return bp, st, vals, pb, tn
+
+    def wall_terms(self, p: Particles, params, geom, scheme, U, prim, w):
+        """``(B[N, nv], dV[N])``: the boundary term B_i of eq. 4.24 (to subtract from d(VU)/dt)
+        and the boundary part of dV_i/dt (module docstring)."""
+        eos = get_eos(scheme.eos)
+        n, d = p.x.shape
+        bp, st, vals, pb, tn = self.wall_state(p, params, scheme, prim)
+        weight = bp.dgamma[:, None] * vals                                        # dGamma_b N_j(x_b)
+        un = jnp.sum(bp.velocity * bp.normal, axis=-1)
+        Fb = [jnp.zeros_like(pb)[:, None], pb[:, None] * bp.normal - tn]
+        if eos.has_energy:
+            Fb.append((pb * un - jnp.sum(tn * bp.velocity, axis=-1))[:, None])
+        Fb = jnp.concatenate(Fb, axis=-1)                                          # F_b . n_b [Nb, nv]
+        flat = st.idx.reshape(-1)
+        wflat = jnp.where(st.mask, weight, 0.0).reshape(-1)
+
+        def scatter(v):   # sum_b dGamma_b N_i(x_b) v_b  -> [N, ...]
+            rows = (wflat.reshape(wflat.shape + (1,) * (v.ndim - 1)) * jnp.repeat(v, st.idx.shape[1], axis=0))
+            return jnp.zeros((n,) + v.shape[1:], v.dtype).at[flat].add(rows)
+
+        B = scatter(Fb)
+        dvol = scatter(un)
+        if scheme.self_flux:
+            beta_n = scatter(bp.normal)                                            # sum_b dGamma N_i(x_b) n_b
+            B = B - ale_flux_dot(U, prim, w, beta_n, eos)
+            if scheme.diffusive:
+                B = B + jnp.einsum("nvd,nd->nv", particle_flux(prim, geom, scheme, params), beta_n)
+            dvol = dvol - jnp.sum(w * beta_n, axis=-1)
+        return B, dvol
+
+    def forces(self, p: Particles, params, scheme):
+        """Force of the fluid on each curve ``[n_curves, d]``: sum_b (p_b n_b - tau_b n_b) dGamma_b
+        (n_b points into the body; SPEC §5.8), pressure and viscous parts ``(total, pressure)``."""
+        from .eos import to_primitive
+
+        prim = to_primitive(p.q / p.vol[:, None], get_eos(scheme.eos), params)
+        bp, _, _, pb, tn = self.wall_state(p, params, scheme, prim)
+        nc = len(self.curves)
+        fp = jax.ops.segment_sum(pb[:, None] * bp.normal * bp.dgamma[:, None], bp.curve, nc)
+        fv = jax.ops.segment_sum(-tn * bp.dgamma[:, None], bp.curve, nc)
+        return fp + fv, fp
+
+    def coefficients(self, p: Particles, params, scheme, *, rho_inf, u_inf, length, curve: str):
+        """Force coefficients of ``curve`` (jnp, differentiable; SPEC §5.8): ``cd``, ``cl`` (the
+        force along and across the free stream ``u_inf[d]``, over 1/2 rho_inf |u_inf|^2
+        ``length``) and their pressure parts ``cd_pressure``, ``cl_pressure``."""
+        names = [c.name for c in self.curves]
+        if curve not in names:
+            raise InputError(f"unknown curve={curve!r}; allowed: {', '.join(names)}")
+        k = names.index(curve)
+        total, pressure = self.forces(p, params, scheme)
+        u = jnp.asarray(u_inf, total.dtype)
+        speed = jnp.linalg.norm(u)
+        e_d = u / speed
+        e_l = jnp.stack([-e_d[1], e_d[0]])
+        q = 0.5 * rho_inf * speed ** 2 * length
+        return {"cd": total[k] @ e_d / q, "cl": total[k] @ e_l / q,
+                "cd_pressure": pressure[k] @ e_d / q, "cl_pressure": pressure[k] @ e_l / q}
+
+    # -- the in-run checks -------------------------------------------------------------------
+    def band_status(self, p: Particles):
+        """``(bits, particle)``: WALL_CROSSED for a fluid particle beyond a wall of the set-up
+        geometry, BOUNDARY_OVERFLOW for a wall stencil with more than ``capacity`` particles."""
+        from .status import Status
+
+        p = jax.lax.stop_gradient(p)
+        fluid = p.kind == Kind.FLUID
+        crossed = jnp.zeros_like(fluid)
+        for poly, inside in zip(self.polys, self.fluid_inside, strict=True):
+            inn = inside_polygon(p.x, poly, jnp)
+            crossed = crossed | (~inn if inside else inn)
+        for s in range(self.segments.shape[0]):
+            crossed = crossed | beyond_segment(p.x, self.segments[s, 0], self.segments[s, 1], self.band, jnp)
+        crossed = crossed & fluid
+        st = self.stencils(p, self.points({}).x)
+        over = jnp.any(st.count > self.capacity)
+        hit = jnp.any(crossed)
+        bits = (jnp.where(hit, jnp.int32(Status.WALL_CROSSED), 0)
+                | jnp.where(over, jnp.int32(Status.BOUNDARY_OVERFLOW), 0)).astype(jnp.int32)
+        nearest = jnp.argmax(st.count > self.capacity)
+        bad = jnp.where(hit, jnp.argmax(crossed), jnp.where(over, st.idx[nearest, 0], -1))
+        return bits, bad.astype(jnp.int32)
+
+
+def walls_to_segments(walls, domain, spacing: float, velocities=None):
+    """Axis-aligned :class:`~mlsph_jax.boundaries.Wall` planes (2D) as :class:`Segment` curves
+    ``wall<k>`` spanning the domain box, one quadrature point per ``spacing``; ``velocities[k]``:
+    wall k's velocity.  Returns ``[(segment, no_slip)]``."""
+    out = []
+    lo, hi = domain.lower, domain.upper
+    for k, w in enumerate(walls):
+        if domain.dim != 2:
+            raise InputError(f"invalid domain of dimension {domain.dim} for boundary-integral walls; allowed: 2D")
+        t = 1 - w.axis                                       # the axis along the wall
+        a = [0.0, 0.0]
+        b = [0.0, 0.0]
+        a[w.axis] = b[w.axis] = w.position
+        # fluid on the left of a -> b
+        forward = (w.side > 0) == (w.axis == 1)
+        a[t], b[t] = (lo[t], hi[t]) if forward else (hi[t], lo[t])
+        n = max(1, int(math.ceil((hi[t] - lo[t]) / spacing - 1e-9)))
+        vel = (0.0, 0.0) if velocities is None else tuple(float(v) for v in np.asarray(velocities[k]))
+        out.append((Segment(f"wall{k}", start=tuple(a), end=tuple(b), n_points=n, velocity=vel), not w.slip))
+    return out
+
+
+class BoundaryIntegral:
+    """Walls by the boundary integral of thesis eq. 4.24 (:mod:`mlsph_jax.wall_integral`)."""
+
+    @staticmethod
+    def setup(p_fluid: Particles, walls, band, params, eos, *, scheme, domain, curves=(), no_slip=None,
+              headroom: float = 1.5, max_spacing_ratio: float = 1.0):
+        """``(particles, BoundaryIntegralWalls)``: no particle is added.  ``walls``: axis-aligned
+        :class:`~mlsph_jax.boundaries.Wall` planes (segments ``wall<k>`` spanning the domain, one
+        point per particle spacing, velocity ``boundary.wall_velocity[k]`` of the Params if present,
+        no-slip unless ``Wall.slip``); ``curves``: further curves, no-slip where ``no_slip[k]``
+        (default: all); ``band``: depth beyond a wall segment within which a particle counts as
+        having crossed it; ``headroom``: stencil capacity over the largest set-up count."""
+        if scheme.method != "mlsph_ale":
+            raise InputError(f"invalid scheme.method={scheme.method!r} with boundary-integral walls; allowed: "
+                             "\"mlsph_ale\" (the boundary term of thesis eq. 4.24 is derived for MLS shape functions)")
+        spacing = float(jnp.min(p_fluid.vol)) ** (1.0 / p_fluid.dim)
+        wv = params["boundary.wall_velocity"] if walls and "boundary.wall_velocity" in params else None
+        pairs = walls_to_segments(list(walls or []), domain, spacing, wv)
+        curves = tuple(c for c, _ in pairs) + tuple(curves)
+        ns_flags = [ns for _, ns in pairs] + list([True] * (len(curves) - len(pairs)) if no_slip is None
+                                                     else no_slip)
+        if len(ns_flags) != len(curves):
+            raise InputError(f"invalid no_slip={no_slip!r}; allowed: one flag per curve ({len(curves) - len(pairs)})")
+        full = Params({**curve_params(curves), **dict(params)})
+        check_geometry(curves, full, p_fluid.x, p_fluid.vol, p_fluid.kind, domain=domain,
+                       max_spacing_ratio=max_spacing_ratio)
+        kern = get_kernel(scheme.kernel)
+        L = np.asarray(domain.length)
+        box = (tuple(L.tolist()), tuple(domain.periodic)) if domain.any_periodic else None
+        xb = quadrature(curves, full).x
+        big = wall_stencils(p_fluid.x, p_fluid.vol, p_fluid.kind, xb, beta=scheme.beta, support=kern.support,
+                            capacity=min(p_fluid.n, 512), box=None if box is None else tuple(map(jnp.asarray, box)))
+        count = np.asarray(big.count)
+        m = basis.basis_size(max(scheme.degree, scheme.fit_degree), p_fluid.dim)
+        if count.min() < m + 1:
+            b = int(np.argmin(count))
+            raise InputError(f"invalid layout near the wall point x={np.round(np.asarray(xb[b]), 6).tolist()}: "
+                             f"{int(count[b])} particles within its support, the MLS fit of degree "
+                             f"{max(scheme.degree, scheme.fit_degree)} needs more than {m}; allowed: a larger "
+                             "scheme.beta or more particles near the walls")
+        closed = [(np.asarray(outline(c, full)), c.fluid == "inside") for c in curves if c.closed]
+        segs = [outline(c, full) for c in curves if not c.closed]
+        obj = BoundaryIntegralWalls(
+            polys=tuple(jnp.asarray(pl) for pl, _ in closed),
+            segments=jnp.asarray(np.asarray(segs, float).reshape(-1, 2, 2)),
+            curves=curves, no_slip=tuple(bool(s) for s in ns_flags),
+            fluid_inside=tuple(ins for _, ins in closed), capacity=int(math.ceil(count.max() * headroom)),
+            beta=float(scheme.beta), kernel=scheme.kernel, band=float(band), box=box, n_walls=len(pairs))
+        return p_fluid, obj
+
+
+BOUNDARIES.register("boundary_integral", BoundaryIntegral())

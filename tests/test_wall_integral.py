@@ -1,0 +1,292 @@
+"""Walls by the boundary integral of thesis eq. 4.24 (mlsph_jax.wall_integral; SPEC §5.8):
+exact balance of uniform states on the walls' own velocity, no mass through walls, free-slip
+walls, Archimedes' buoyancy from the wall quadrature, the constrained wall-gradient fit, the
+in-run checks, and Couette flow against the exact series and the mirror-ghost walls."""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mlsph_jax import neighbors as nb
+from mlsph_jax.boundaries import BOUNDARIES, Wall
+from mlsph_jax.eos import get_eos, to_conservative
+from mlsph_jax.errors import InputError
+from mlsph_jax.geometry import Circle, Ellipse, Polygon
+from mlsph_jax.integrate import step_status
+from mlsph_jax.kernels import get_kernel
+from mlsph_jax.rhs import geometry, rhs
+from mlsph_jax.scheme import Scheme
+from mlsph_jax.state import Domain, Kind, Params, make_particles
+from mlsph_jax.status import Status
+from mlsph_jax.wall_integral import constrained_gradient, wall_stencils
+
+TAIT = Params({"eos.rho0": 1.0, "eos.c0": 10.0, "eos.gamma": 7.0, "eos.p0": 5.0, "physics.mu": 0.1})
+GAS = Params({"eos.gamma": 1.4, "physics.mu": 0.01})
+
+
+def _lattice(nx, ny, dx, x0=0.0, y0=0.0):
+    X, Y = np.meshgrid(x0 + (np.arange(nx) + 0.5) * dx, y0 + (np.arange(ny) + 0.5) * dx, indexing="ij")
+    return np.stack([X.ravel(), Y.ravel()], axis=1)
+
+
+def _channel(scheme, params, vel=(0.0, 0.0), nx=8, ny=10, slip=False, rho=None, seed=None):
+    """Fluid between plates at y = 0 and y = 1 (periodic in x) with boundary-integral walls."""
+    dx = 1.0 / ny
+    x = _lattice(nx, ny, dx)
+    n = len(x)
+    eos = get_eos(scheme.eos)
+    v = np.broadcast_to(np.asarray(vel, float), (n, 2)).copy()
+    r = np.ones(n) if rho is None else rho
+    if seed is not None:   # a non-uniform state
+        rng = np.random.default_rng(seed)
+        v += 0.3 * rng.standard_normal((n, 2))
+        r = 1.0 + 0.05 * rng.standard_normal(n)
+    p_arg = None if scheme.eos == "tait" else jnp.asarray(r)          # ideal gas: p = rho (e = 2.5)
+    U = to_conservative(jnp.asarray(r), jnp.asarray(v), p_arg, eos, params)
+    pf = make_particles(x, np.full(n, dx * dx), U)
+    domain = Domain((0.0, -dx), (nx * dx, 1.0 + dx), (True, False))
+    band = scheme.support * scheme.beta * dx
+    walls = [Wall(1, 0.0, 1, slip=slip), Wall(1, 1.0, -1, slip=slip)]
+    p, bw = BOUNDARIES.get("boundary_integral").setup(pf, walls, band, params, scheme.eos, scheme=scheme,
+                                                       domain=domain)
+    return p, bw, domain
+
+
+def _body_box(curve, scheme, params, vel=(0.0, 0.0), dx=0.1, pressure=None):
+    """A body in a periodic box of fluid (lattice with the body cut out)."""
+    from mlsph_jax.geometry import curve_params
+    from mlsph_jax.geometry.checks import inside_polygon, outline
+
+    m = int(round(3.0 / dx))
+    x = _lattice(m, m, dx, -1.5, -1.5)
+    x = x[~inside_polygon(x, outline(curve, Params(curve_params([curve]))))]
+    n = len(x)
+    eos = get_eos(scheme.eos)
+    pr = jnp.ones(n) if pressure is None else jnp.asarray(pressure(x))
+    U = to_conservative(jnp.ones(n), jnp.broadcast_to(jnp.asarray(vel, float), (n, 2)), pr, eos, params)
+    pf = make_particles(x, np.full(n, dx * dx), U)
+    domain = Domain((-1.5, -1.5), (1.5, 1.5), (True, True))
+    p, bw = BOUNDARIES.get("boundary_integral").setup(pf, [], 2 * dx, params, scheme.eos, scheme=scheme,
+                                                       domain=domain, curves=(curve,))
+    return p, bw, domain
+
+
+def _rhs(p, bw, domain, scheme, params):
+    h = scheme.beta * p.vol ** (1.0 / p.dim)
+    _, nl = nb.allocate(p.x, h, domain)
+
+    @jax.jit
+    def f(p, params):
+        geom = geometry(p.x, p.vol, nl, scheme, domain)
+        return rhs(p, params, geom, scheme, bw)
+
+    return f(p, params)
+
+
+def _scale(p, params, scheme):
+    """Momentum flux through one particle face, (p + rho |u|^2) dx: the size of the terms that
+    cancel, against which 'round-off' is measured."""
+    pr = _prim(p, scheme, params)
+    return float(jnp.max(pr.p + pr.rho * jnp.sum(pr.vel ** 2, axis=-1))) * float(p.vol[0]) ** 0.5
+
+
+# --- uniform states -------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("viscous", [False, True])
+def test_uniform_state_at_rest_stays_exactly_uniform(viscous):
+    """Every bracket [F_b - F_i] and [F_j - F_i] vanishes: the rate is zero to round-off."""
+    sch = Scheme(eos="tait", viscous=viscous)
+    p, bw, dom = _channel(sch, TAIT)
+    _, _, dq = _rhs(p, bw, dom, sch, TAIT)
+    assert float(jnp.max(jnp.abs(dq))) < 1e-13 * _scale(p, TAIT, sch)
+
+
+def test_boundary_term_closes_the_wall_rows_without_the_self_term():
+    """Without the self term (conservative form) the wall rows of a uniform state feel the
+    one-sided interior sum F . sum_j A_ij; the boundary term F_b . sum_b N_i(x_b) n_b dGamma_b
+    cancels most of it (the rest is the one-point-quadrature defect of SPEC §5.5, measured:
+    max |rate| 0.395 with the walls, 0.933 without at ny = 10; 0.198 / 0.466 at ny = 20)."""
+    sch = Scheme(eos="tait", self_flux=False)
+    p, bw, dom = _channel(sch, TAIT)
+    _, _, dq = _rhs(p, bw, dom, sch, TAIT)
+    _, _, dq0 = _rhs(p, None, dom, sch, TAIT)
+    with_walls, without = float(jnp.max(jnp.abs(dq))), float(jnp.max(jnp.abs(dq0)))
+    assert with_walls < 0.5 * without and without > 0.1 * _scale(p, TAIT, sch)
+
+
+def _prim(p, sch, params):
+    from mlsph_jax.eos import to_primitive
+    return to_primitive(p.U, get_eos(sch.eos), params)
+
+
+def test_uniform_stream_with_a_body_moving_along_stays_uniform():
+    """Lagrangian particles and an ellipse all moving at U: every boundary term vanishes."""
+    sch = Scheme(eos="ideal_gas", frame="lagrangian")
+    U = (0.3, -0.1)
+    ell = Ellipse("e", centre=(0.0, 0.0), semi_axes=(0.5, 0.25), angle=0.3, n_points=40, velocity=U)
+    p, bw, dom = _body_box(ell, sch, GAS, vel=U)
+    dx, dvol, dq = _rhs(p, bw, dom, sch, GAS)
+    assert float(jnp.max(jnp.abs(dq))) < 1e-13 and float(jnp.max(jnp.abs(dvol))) < 1e-14
+    assert np.allclose(np.asarray(dx), U, atol=1e-15)
+
+
+def test_free_slip_wall_keeps_a_tangential_uniform_flow():
+    sch = Scheme(eos="tait")
+    p, bw, dom = _channel(sch, TAIT, vel=(1.0, 0.0), slip=True)
+    _, _, dq = _rhs(p, bw, dom, sch, TAIT)
+    assert float(jnp.max(jnp.abs(dq))) < 1e-13 * _scale(p, TAIT, sch)
+    # a no-slip viscous wall does not: it drags the first rows
+    sch_v = Scheme(eos="tait", viscous=True)
+    p2, bw2, _ = _channel(sch_v, TAIT, vel=(1.0, 0.0))
+    _, _, dq2 = _rhs(p2, bw2, dom, sch_v, TAIT)
+    wall_rows = np.asarray(p2.x[:, 1]) < 0.1
+    assert np.all(np.asarray(dq2[wall_rows, 1]) < -1e-3)
+
+
+# --- conservation ---------------------------------------------------------------------------------
+
+def test_no_mass_through_walls_and_momentum_balances_the_wall_force():
+    """Without the self term the pair terms are antisymmetric and the wall flux has no mass part:
+    the total mass rate is zero to round-off for any state; the total momentum rate is minus the
+    force of the fluid on the walls (Newton's third law)."""
+    sch = Scheme(eos="ideal_gas", self_flux=False, viscous=True)
+    p, bw, dom = _channel(sch, GAS, seed=1)
+    _, _, dq = _rhs(p, bw, dom, sch, GAS)
+    total = np.asarray(jnp.sum(dq, axis=0))
+    flux_scale = float(jnp.sum(jnp.abs(dq[:, 0])))
+    assert abs(total[0]) < 1e-13 * flux_scale
+    force, _ = jax.jit(lambda p: bw.forces(p, GAS, sch))(p)
+    assert np.allclose(total[1:3], -np.asarray(jnp.sum(force, axis=0)), rtol=0, atol=1e-12 * flux_scale)
+
+
+# --- forces ---------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("curve", [
+    Circle("c", centre=(0.05, 0.1), radius=0.5, n_points=64),
+    Ellipse("c", centre=(0.0, -0.1), semi_axes=(0.6, 0.3), angle=0.5, n_points=64),
+    Polygon("c", vertices=((-0.5, -0.4), (0.6, -0.3), (0.1, 0.5)), spacing=0.05),
+])
+def test_buoyancy_is_archimedes_and_uniform_pressure_gives_no_force(curve):
+    sch = Scheme(eos="ideal_gas")
+    rho_g, p0 = 0.7, 10.0
+    p, bw, _ = _body_box(curve, sch, GAS, pressure=lambda x: p0 - rho_g * x[:, 1])
+    force, fp = jax.jit(lambda p: bw.forces(p, GAS, sch))(p)
+    area = {"Circle": math.pi * 0.25, "Ellipse": math.pi * 0.18}.get(type(curve).__name__)
+    if area is None:
+        v = np.asarray(curve.vertices)
+        area = 0.5 * abs(np.sum(v[:, 0] * np.roll(v[:, 1], -1) - np.roll(v[:, 0], -1) * v[:, 1]))
+    assert abs(float(force[0, 1]) / (rho_g * area) - 1.0) < 1e-10 and abs(float(force[0, 0])) < 1e-12
+    co = bw.coefficients(p, GAS, sch, rho_inf=2.0, u_inf=(0.0, -3.0), length=0.5, curve="c")
+    assert abs(float(co["cd"]) + rho_g * area / (0.5 * 2.0 * 9.0 * 0.5)) < 1e-10     # lift up = drag against -y
+    assert abs(float(co["cl"])) < 1e-11 and float(co["cd"]) == float(co["cd_pressure"])
+    if isinstance(curve, Circle):   # d(buoyancy)/d(radius) = 2 pi r rho g through the quadrature and the MLS
+        key = "geometry.c.radius"
+        P = GAS.updated(bw.default_params())
+        g = jax.jit(jax.grad(lambda P: bw.forces(p, P, sch)[0][0, 1]))(P)[key]
+        assert abs(float(g) / (2 * math.pi * 0.5 * rho_g) - 1.0) < 1e-9
+    pu, bwu, _ = _body_box(curve, sch, GAS, pressure=lambda x: np.full(len(x), p0))
+    fu, _ = jax.jit(lambda p: bwu.forces(p, GAS, sch))(pu)
+    assert float(jnp.max(jnp.abs(fu))) < 1e-13 * p0
+
+
+# --- the wall fit ---------------------------------------------------------------------------------
+
+def test_constrained_wall_gradient_is_exact_for_quadratic_profiles():
+    dx = 0.1
+    x = jnp.asarray(_lattice(10, 6, dx))
+    vol = jnp.full(len(x), dx * dx)
+    xb = jnp.asarray([[0.3, 0.0], [0.55, 0.0]])
+    st = wall_stencils(x, vol, jnp.zeros(len(x), jnp.int32), xb, beta=1.5, support=2.0, capacity=40)
+    a, b, uw = 2.0, -3.0, 0.4
+    u = jnp.stack([uw + a * x[:, 1] + b * x[:, 1] ** 2, jnp.zeros(len(x))], axis=1)
+    G = constrained_gradient(st, u, jnp.asarray([[uw, 0.0]] * 2), get_kernel("cubic_spline"), 2)
+    assert np.allclose(np.asarray(G), [[[0.0, a], [0.0, 0.0]]] * 2, atol=1e-12)
+    # a wrong wall velocity changes the gradient: the constraint is imposed, not fitted
+    G2 = constrained_gradient(st, u, jnp.asarray([[uw + 0.1, 0.0]] * 2), get_kernel("cubic_spline"), 2)
+    assert float(jnp.abs(G2[0, 0, 1] - a)) > 0.5
+
+
+# --- in-run checks and bad input --------------------------------------------------------------------
+
+def test_particle_crossing_a_wall_or_crowding_it_stops_the_run():
+    sch = Scheme(eos="ideal_gas")
+    circ = Circle("cyl", radius=0.5, n_points=40)
+    p, bw, _ = _body_box(circ, sch, GAS)
+    bits, bad = bw.band_status(p)
+    assert int(bits) == 0 and int(bad) == -1
+    moved = p.replace(x=p.x.at[7].set(jnp.asarray([0.1, 0.2])))
+    bits, bad = bw.band_status(moved)
+    assert Status(int(bits)) == Status.WALL_CROSSED and int(bad) == 7
+    # the step status of every run path sees it
+    stats = (p.ppd, jnp.asarray(0), jnp.asarray(0), jnp.asarray(-1))
+    bits, bad = step_status(p, moved, GAS, sch, 1e-3, jnp.asarray(0, jnp.int32), stats, boundary=bw)
+    assert Status(int(bits)) == Status.WALL_CROSSED and int(bad) == 7
+    crowd = p.replace(x=jnp.concatenate([p.x, jnp.tile(jnp.asarray([[0.6, 0.0]]), (60, 1))]),
+                      vol=jnp.concatenate([p.vol, jnp.full(60, 0.01)]), q=jnp.concatenate([p.q, p.q[:60]]),
+                      kind=jnp.concatenate([p.kind, jnp.zeros(60, p.kind.dtype)]),
+                      ppd=jnp.concatenate([p.ppd, p.ppd[:60]]))
+    bits, _ = bw.band_status(crowd)
+    assert Status(int(bits)) & Status.BOUNDARY_OVERFLOW
+    pc, bwc, _ = _channel(Scheme(eos="tait", viscous=True), TAIT)
+    below = pc.replace(x=pc.x.at[3].set(jnp.asarray([0.35, -0.01])))
+    assert Status(int(bwc.band_status(below)[0])) == Status.WALL_CROSSED
+
+
+def test_bad_set_up_is_refused():
+    with pytest.raises(InputError, match="scheme.method='sph_ale'"):
+        _channel(Scheme(eos="tait", method="sph_ale"), TAIT)
+    with pytest.raises(InputError, match=r"fluid particle \d+ .* inside the body geometry.cyl"):
+        sch = Scheme(eos="ideal_gas")
+        x = _lattice(10, 10, 0.1)
+        pf = make_particles(x, np.full(len(x), 0.01), jnp.tile(jnp.asarray([[1.0, 0.0, 0.0, 2.5]]), (len(x), 1)))
+        BOUNDARIES.get("boundary_integral").setup(pf, [], 0.2, GAS, "ideal_gas", scheme=sch,
+                                                  domain=Domain((0.0, 0.0), (1.0, 1.0), (True, True)),
+                                                  curves=(Circle("cyl", centre=(0.5, 0.5), radius=0.2, n_points=20),))
+    assert Kind.FLUID == 0
+
+
+# --- channel flows against the exact series and the mirror ghosts ----------------------------------
+
+QUIET = ("output.progress=false", "output.plots=false")
+
+
+def _channel_run(path, walls, *overrides):
+    from mlsph_jax import config
+    from mlsph_jax.cases import build_problem
+    from mlsph_jax.simulation import run_problem
+
+    cfg = config.load(path, [*QUIET, "case.nx=8", "time.cfl=0.6", f"case.walls={walls}", *overrides])
+    return run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True).summary
+
+
+def test_couette_matches_the_exact_series_at_least_as_well_as_mirror_ghosts():
+    """Start-up Couette (Re 10, ny = 10, t = 1).  Measured L-inf errors: 0.0166 with the boundary
+    integral, 0.0526 with mirror ghosts (the issue's target: <= 2x the ghosts')."""
+    sbi = _channel_run("configs/couette.toml", "boundary_integral", "case.ny=10", "time.t_end=1.0")
+    mg = _channel_run("configs/couette.toml", "mirror_ghosts", "case.ny=10", "time.t_end=1.0")["metrics"]
+    bi = sbi["metrics"]
+    assert bi["linf_u_error"] <= 2.0 * mg["linf_u_error"]
+    assert bi["linf_u_error"] < 0.02 and bi["max_abs_v"] < 1e-12
+    # the plates exchange momentum with the fluid: reported as such, not as a drift of the scheme
+    assert sbi["conservation_info"]["label"] == "change (boundary fluxes)" and abs(sbi["conservation"]["mass"]) < 1e-12
+
+
+SHIFT_MASS = pytest.mark.xfail(strict=True, reason=(
+    "known defect (docs/architecture.md decision 54): the xu shifting drift of the wall rows (one-sided "
+    "neighbourhoods) points at the wall, and with the self term the mass changes by sum_i rho_i (u_i - w_i) . "
+    "d_i, d_i the wall rows' quadrature defect: measured 3.7e-3 at t = 1 (L-inf 0.0155)"))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("frame", ["lagrangian", pytest.param("ale_shift", marks=SHIFT_MASS)])
+def test_couette_on_moving_particles(frame):
+    """The same walls on moving particles (no ghosts to keep in step): measured, ny = 10, t = 1,
+    Lagrangian: L-inf 0.0166 (mirror ghosts 0.0512), mass change 1e-14, max |v| 3.6e-4."""
+    s = _channel_run("configs/couette.toml", "boundary_integral", "case.ny=10", "time.t_end=1.0",
+                     f"scheme.frame={frame}")
+    assert s["status"] == "ok" and s["metrics"]["linf_u_error"] < 0.02 and abs(s["conservation"]["mass"]) < 1e-12
