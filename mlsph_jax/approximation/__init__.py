@@ -170,7 +170,7 @@ def row_blocks(fn, n: int, block: int, outputs):
     predecessor.  With ``block >= n`` this is a single call.
 
     In reverse mode each block is rematerialised (:func:`block_remat`, default on): the
-    gradient of a blocked pass then costs about a third of what storing its per-block
+    gradient of a right-hand side then costs about half of what storing the per-block
     intermediates costs (docs/performance.md, "Gradients").
     """
     if _REMAT_BLOCKS:
