@@ -16,12 +16,21 @@ experiments/output/bench_gradients.json.
 
 ``--plan-only`` compiles both programs and reports XLA's memory plan without executing them (the
 issue's 10,000-step question: ``--sizes 100 --steps 10000 --checkpoints nested --plan-only``).
+
+``--remat-blocks on|off|ab``: with (default) or without the per-block rematerialisation of the
+stencil passes (:func:`mlsph_jax.approximation.block_remat`); ``ab`` compiles both in the same
+child and times them interleaved (A, B, A, B, ..., best of ``--repeat``), so that the load of a
+shared machine falls on both alike; the row then holds both timings and the CPU time of each (a
+second measure that contention distorts less), the peak RSS is that of the pair.  ``--dt``: the
+fixed step (``t_end = dt * steps``) for runs shorter than the default 1000 steps over t = 0.2.
+Every row records the load average (``os.getloadavg``) at its end.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import resource
 import subprocess
@@ -41,56 +50,73 @@ def _planned_mb(compiled) -> float | None:
         return None
 
 
-def child(n: int, steps: int, checkpoint: str, max_gb: float, plan_only: bool = False) -> dict:
+def _timed(fn, arg) -> tuple[float, float, object]:
+    """(wall seconds, CPU seconds of this process, value) of one blocking call."""
+    import jax
+
+    c0, t0 = time.process_time(), time.perf_counter()
+    val = jax.block_until_ready(fn(arg))
+    return time.perf_counter() - t0, time.process_time() - c0, val
+
+
+def child(n: int, steps: int, checkpoint: str, max_gb: float, plan_only: bool = False, remat: str = "on",
+          dt: float | None = None, repeat: int = 1) -> dict:
     import jax
 
     from mlsph_jax import config
     from mlsph_jax.cases import build_problem
     from mlsph_jax.differentiable import make_simulate, with_param
 
-    cfg = config.load(ROOT / "configs/taylor_green_2d.toml", [f"case.n={n}", "time.t_end=0.2"])
+    t_end = 0.2 if dt is None else dt * steps
+    cfg = config.load(ROOT / "configs/taylor_green_2d.toml", [f"case.n={n}", f"time.t_end={t_end!r}"])
     pb = build_problem(cfg)
-    # record_every=1 (one scalar per step): nested checkpointing groups steps into segments that are
-    # multiples of record_every, so recording only at the end would leave a single segment
-    sim = make_simulate(pb, n_steps=steps, checkpoint=checkpoint, record_every=1)
-
-    def f(mu):
-        return sim(with_param(pb.params, "physics.mu", mu), pb.particles).series["ke"][-1]
-
+    variants = {"on": [True], "off": [False], "ab": [False, True]}[remat]
     mu = float(pb.params["physics.mu"])
-    out = {"n_particles": n * n, "steps": steps, "checkpoint": checkpoint}
-    fwd = jax.jit(f)
-    t0 = time.perf_counter()
-    c = fwd.lower(mu).compile()
-    out["forward_compile_s"] = time.perf_counter() - t0
-    if plan_only:  # XLA's memory plan of both programs, nothing executed (e.g. 10,000 steps)
+    out = {"n_particles": n * n, "steps": steps, "checkpoint": checkpoint, "t_end": t_end, "remat_blocks": remat}
+    progs = {}
+    for rb in variants:
+        # record_every=1 (one scalar per step): nested checkpointing groups steps into segments that are
+        # multiples of record_every, so recording only at the end would leave a single segment
+        sim = make_simulate(pb, n_steps=steps, checkpoint=checkpoint, record_every=1, remat_blocks=rb)
+
+        def f(mu, sim=sim):
+            return sim(with_param(pb.params, "physics.mu", mu), pb.particles).series["ke"][-1]
+
+        t0 = time.perf_counter()
+        c = jax.jit(f).lower(mu).compile()
+        out["forward_compile_s"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         cg = jax.jit(jax.grad(f)).lower(mu).compile()
         out["reverse_compile_s"] = time.perf_counter() - t0
         out["planned_forward_mb"] = _planned_mb(c)
         out["planned_reverse_mb"] = _planned_mb(cg)
+        progs[rb] = (c, cg)
+    if plan_only:  # XLA's memory plan of both programs, nothing executed (e.g. 10,000 steps)
         out["skipped"] = "--plan-only: compiled, not executed"
         return out
-    t0 = time.perf_counter()
-    jax.block_until_ready(c(mu))
-    out["forward_s"] = time.perf_counter() - t0
-    rss_fwd = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    g = jax.jit(jax.grad(f))
-    t0 = time.perf_counter()
-    cg = g.lower(mu).compile()
-    out["reverse_compile_s"] = time.perf_counter() - t0
-    out["forward_p_upd_per_s"] = n * n * steps / out["forward_s"]
-    out["planned_forward_mb"] = _planned_mb(c)
-    out["planned_reverse_mb"] = _planned_mb(cg)
-    out["peak_rss_forward_mb"] = rss_fwd
     if out["planned_reverse_mb"] is not None and out["planned_reverse_mb"] > 1024 * max_gb:
         # executing would exhaust the machine; report XLA's plan instead of a measurement
         out["skipped"] = f"planned reverse-mode buffers {out['planned_reverse_mb'] / 1024:.1f} GB > --max-gb {max_gb}"
         return out
-    t0 = time.perf_counter()
-    out["gradient"] = float(jax.block_until_ready(cg(mu)))
-    out["reverse_s"] = time.perf_counter() - t0
+    best = {rb: {} for rb in variants}
+    for _ in range(repeat):
+        for rb in variants:   # interleaved: A, B, A, B, ...
+            c, cg = progs[rb]
+            for key, fn in (("forward", c), ("reverse", cg)):
+                wall, cpu, val = _timed(fn, mu)
+                b = best[rb]
+                b[f"{key}_s"] = min(b.get(f"{key}_s", wall), wall)
+                b[f"{key}_cpu_s"] = min(b.get(f"{key}_cpu_s", cpu), cpu)
+                b["gradient" if key == "reverse" else "ke"] = float(val)
+                if rb == variants[0] and key == "forward":
+                    out["peak_rss_forward_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    out.update(best[variants[-1]])
+    if remat == "ab":
+        out["old"] = best[False]
+        out["gradient_rel_diff"] = abs(best[True]["gradient"] - best[False]["gradient"]) / abs(best[False]["gradient"])
+    out["forward_p_upd_per_s"] = n * n * steps / out["forward_s"]
     out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    out["load_average"] = os.getloadavg()
     return out
 
 
@@ -105,17 +131,26 @@ def main():
     ap.add_argument("--out", type=Path, default=ROOT / "experiments" / "output" / "bench_gradients.json")
     ap.add_argument("--plan-only", action="store_true",
                     help="compile forward and reverse programs and report XLA's memory plan without running them")
+    ap.add_argument("--remat-blocks", choices=("on", "off", "ab"), default="on",
+                    help="per-block rematerialisation of the stencil passes; ab: both, timed interleaved")
+    ap.add_argument("--dt", type=float, default=None, help="fixed step (t_end = dt * steps); default t_end = 0.2")
+    ap.add_argument("--repeat", type=int, default=1,
+                    help="timed repetitions (best of; interleaved with --remat-blocks ab)")
     ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
-        print(json.dumps(child(int(args.child[0]), int(args.child[1]), args.child[2], args.max_gb, args.plan_only)))
+        print(json.dumps(child(int(args.child[0]), int(args.child[1]), args.child[2], args.max_gb, args.plan_only,
+                               args.remat_blocks, args.dt, args.repeat)))
         return
     rows = []
     print(f"{'N':>7} {'steps':>6} {'checkpoint':<10} {'fwd s':>8} {'fwd p-upd/s':>11} {'rev s':>8} {'rev/fwd':>7} "
           f"{'peak MB':>9} {'plan MB':>9} {'compile s':>9}")
     for n in args.sizes:
         for ck in args.checkpoints:
-            cmd = [sys.executable, __file__, "--max-gb", str(args.max_gb), "--child", str(n), str(args.steps), ck]
+            cmd = [sys.executable, __file__, "--max-gb", str(args.max_gb), "--remat-blocks", args.remat_blocks,
+                   "--repeat", str(args.repeat), "--child", str(n), str(args.steps), ck]
+            if args.dt is not None:
+                cmd[2:2] = ["--dt", repr(args.dt)]
             if args.plan_only:
                 cmd.insert(2, "--plan-only")
             try:
@@ -140,10 +175,17 @@ def main():
                 print(f"{row['n_particles']:>7} {row['steps']:>6} {ck:<10} {fwd} {'-':>8} {'-':>7} {'-':>9} "
                       f"{plan_s} {comp:>9.1f}  not executed: {row['skipped']}", flush=True)
                 continue
+            cpu = f"cpu ratio {row['reverse_cpu_s'] / row['forward_cpu_s']:.2f}"
+            if "old" in row:
+                o = row["old"]
+                cpu += (f"; without block remat: fwd {o['forward_s']:.1f} s rev {o['reverse_s']:.1f} s ratio "
+                        f"{o['reverse_s'] / o['forward_s']:.2f} cpu ratio "
+                        f"{o['reverse_cpu_s'] / o['forward_cpu_s']:.2f}; "
+                        f"gradients differ by {row['gradient_rel_diff']:.1e}")
             print(f"{row['n_particles']:>7} {row['steps']:>6} {ck:<10} {row['forward_s']:>8.1f} "
                   f"{row['forward_p_upd_per_s']:>11.3g} {row['reverse_s']:>8.1f} "
                   f"{row['reverse_s'] / row['forward_s']:>7.2f} {row['peak_rss_mb']:>9.0f} {plan_s} "
-                  f"{comp:>9.1f}", flush=True)
+                  f"{comp:>9.1f}  {cpu}; load {row['load_average'][0]:.1f}", flush=True)
     dest = args.out
     dest.parent.mkdir(parents=True, exist_ok=True)
     import jax

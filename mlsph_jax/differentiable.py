@@ -54,6 +54,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .approximation import block_remat
 from .errors import InputError
 from .integrate import ssp_rk3_step, step_status
 from .run import cfl_limit, check_fixed_step, default_steps, setup_run
@@ -114,7 +115,7 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
                   checkpoint: str = "nested", segment: int | None = None, policy=None,
                   record_every: int = 1, diagnostics: Callable | None = None,
                   headroom: float = 1.6, cfl: float = 0.3, cfl_viscous: float = 0.125,
-                  nspec=None) -> Callable[[Params, Particles], SimOutput]:
+                  nspec=None, remat_blocks: bool = True) -> Callable[[Params, Particles], SimOutput]:
     """Build ``simulate(params, particles) -> SimOutput`` for ``problem`` (module docstring).
 
     ``diagnostics(particles, t, params) -> dict`` of differentiable scalars recorded every
@@ -130,7 +131,10 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
     limit drops below ``dt`` fails with ``Status.DT_ABOVE_CFL``.  ``headroom``: neighbour
     capacity headroom; the capacity is fixed for the whole run (an overflow is a failure).
     ``nspec``: a :class:`~mlsph_jax.neighbors.NeighborSpec` to use instead of sizing one
-    (:func:`mlsph_jax.run.setup_run`).
+    (:func:`mlsph_jax.run.setup_run`).  ``remat_blocks``: rematerialise each row block of the
+    stencil passes in reverse mode (:func:`mlsph_jax.approximation.block_remat`; same values,
+    about half the cost of a right-hand side's gradient); ``False`` stores the blocks'
+    intermediates as before.
     """
     if checkpoint not in CHECKPOINTS:
         raise InputError(f"invalid checkpoint={checkpoint!r}; allowed: {', '.join(CHECKPOINTS)}")
@@ -161,6 +165,10 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
     blocks_per_seg = seg // record_every
 
     def simulate(params: Params, particles: Particles) -> SimOutput:
+        with block_remat(remat_blocks):   # a trace-time setting: it covers every stage traced below
+            return _simulate(params, particles)
+
+    def _simulate(params: Params, particles: Particles) -> SimOutput:
         geom_fn = setup.geometry_fn(particles)
         st0, bad0 = state_status(particles, params, scheme)
         st0 = st0 | setup.initial_status()

@@ -28,6 +28,7 @@ Smoothing length: h_i = beta * V_i^(1/d) (thesis eq. 4.34).  MLS uses the gather
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 
@@ -128,6 +129,41 @@ def block_rows(n: int, k: int) -> int:
     return max(1, min(n, BLOCK_SLOTS // max(k, 1)))
 
 
+#: Whether :func:`row_blocks` rematerialises each block in reverse mode (see there); switched
+#: by :func:`block_remat` at trace time.
+_REMAT_BLOCKS = True
+
+
+@contextlib.contextmanager
+def block_remat(enabled: bool):
+    """Trace-time switch of the per-block rematerialisation of :func:`row_blocks` (default on).
+
+    It only changes how reverse mode stores a block's intermediates, never a value: the forward
+    program is the same and gradients agree to round-off (tests/test_gradient_cost.py).  Functions
+    traced (``jit``, ``grad``) inside the ``with`` use the setting; ``jax.jit`` caches earlier traces."""
+    global _REMAT_BLOCKS
+    old, _REMAT_BLOCKS = _REMAT_BLOCKS, bool(enabled)
+    try:
+        yield
+    finally:
+        _REMAT_BLOCKS = old
+
+
+def _remat_block(fn):
+    """``fn(start, size)`` under ``jax.checkpoint``: reverse mode keeps only the block's inputs
+    (slices of arrays that exist anyway) and recomputes its fused forward, in cache, just before
+    its transpose, instead of writing every [rows, K] temporary of every block to memory and
+    reading it back.  ``prevent_cse=False``: the block runs inside a loop (or once), where JAX's
+    CSE concern does not arise, and the forward program stays the plain one."""
+
+    def run(start, size):
+        if isinstance(start, int):
+            return jax.checkpoint(lambda: fn(start, size), prevent_cse=False)()
+        return jax.checkpoint(lambda s: fn(s, size), prevent_cse=False)(start)
+
+    return run
+
+
 def row_blocks(fn, n: int, block: int, outputs):
     """Run ``fn(start, size) -> tuple of [size, ...] arrays`` over row blocks of ``n`` rows.
 
@@ -135,7 +171,13 @@ def row_blocks(fn, n: int, block: int, outputs):
     are visited by a ``fori_loop`` with a static trip count (reverse-mode differentiable); the
     last block is clamped to end at row ``n`` and so recomputes, identically, a few rows of its
     predecessor.  With ``block >= n`` this is a single call.
+
+    In reverse mode each block is rematerialised (:func:`block_remat`, default on): the
+    gradient of a right-hand side then costs about half of what storing the per-block
+    intermediates costs (docs/performance.md, "Gradients").
     """
+    if _REMAT_BLOCKS:
+        fn = _remat_block(fn)
     if block >= n:
         return tuple(r.astype(dtype) for r, (_, dtype) in zip(fn(0, n), outputs, strict=True))
     nb = -(-n // block)

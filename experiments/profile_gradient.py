@@ -1,0 +1,93 @@
+"""What the gradient of one right-hand side costs, piece by piece, with and without the per-block
+rematerialisation of the stencil passes (:func:`mlsph_jax.approximation.block_remat`).  Not a test.
+
+Taylor-Green (``configs/taylor_green_2d.toml``, n x n, Eulerian, geometry fixed).  Pieces:
+``mid`` (reconstruction fit and midpoint states, a blocked pass), ``visc`` (viscous fluxes,
+unblocked), ``full`` (:func:`mlsph_jax.rhs.rhs`: both plus the blocked flux sweep).  For each,
+the forward and ``jax.vjp`` (forward + pullback, w.r.t. the conserved fields) are compiled ahead
+of time and timed interleaved (remat on, off, on, off, ...); the figure is the best CPU time of
+this process over ``--repeat`` calls (``time.process_time``: on a shared machine it moves less
+with the load than wall time; both are printed).  Prints the load average beside every row.
+
+    python experiments/profile_gradient.py [--n 50] [--repeat 7] [--rounds 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+
+from mlsph_jax import config
+from mlsph_jax.approximation import block_remat
+from mlsph_jax.cases import build_problem
+from mlsph_jax.eos import get_eos, to_primitive
+from mlsph_jax.rhs import rhs
+from mlsph_jax.run import setup_run
+from mlsph_jax.viscous import viscous_terms
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def pieces(n: int):
+    pb = build_problem(config.load(ROOT / "configs/taylor_green_2d.toml", [f"case.n={n}"]))
+    p = pb.particles
+    geom = setup_run(pb, headroom=1.6).geometry_fn(p)(p)
+    scheme, params = pb.scheme, pb.params
+    eos = get_eos(scheme.eos)
+
+    def mid(q):
+        F = scheme.component("reconstruction_variables").from_conservative(q / p.vol[:, None], eos, params)
+        return scheme.component("reconstruction").midpoint_states(F, geom, scheme.reconstruction_degree)
+
+    def visc(q):
+        return viscous_terms(to_primitive(q / p.vol[:, None], eos, params), geom, scheme, params, scheme.fit_degree)
+
+    def full(q):
+        return rhs(p.replace(q=q), params, geom, scheme, pb.boundary)[2]
+
+    return p.q, {"mid": mid, "visc": visc, "full": full}
+
+
+def best(fn, arg, repeat: int) -> tuple[float, float]:
+    wall = cpu = float("inf")
+    for _ in range(repeat):
+        c0, t0 = time.process_time(), time.perf_counter()
+        jax.block_until_ready(fn(arg))
+        wall, cpu = min(wall, time.perf_counter() - t0), min(cpu, time.process_time() - c0)
+    return wall, cpu
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--n", type=int, default=50, help="particles per side")
+    ap.add_argument("--repeat", type=int, default=7)
+    ap.add_argument("--rounds", type=int, default=2)
+    args = ap.parse_args()
+    q, fns = pieces(args.n)
+    progs = {}
+    for remat in (True, False):
+        for name, f in fns.items():
+            y = f(q)
+            ct = jnp.cos(0.1 * jnp.arange(y.size, dtype=y.dtype)).reshape(y.shape)
+            with block_remat(remat):
+                fwd = jax.jit(f).lower(q).compile()
+                vjp = jax.jit(lambda q, f=f, ct=ct: jax.vjp(f, q)[1](ct)).lower(q).compile()
+            progs[(name, remat)] = (fwd, vjp)
+    print(f"Taylor-Green {args.n}x{args.n}: best of {args.repeat}, CPU ms (wall ms)")
+    for r in range(args.rounds):
+        for name in fns:
+            for remat in (True, False):
+                fwd, vjp = progs[(name, remat)]
+                (wf, cf), (wv, cv) = best(fwd, q, args.repeat), best(vjp, q, args.repeat)
+                print(f"round {r} {name:5s} block remat {'on ' if remat else 'off'}: forward {cf * 1e3:7.2f} "
+                      f"({wf * 1e3:7.2f})  vjp {cv * 1e3:7.2f} ({wv * 1e3:7.2f})  vjp/forward {cv / cf:5.2f}  "
+                      f"load {os.getloadavg()[0]:.1f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
