@@ -226,3 +226,19 @@ the 100 x 100 run must do at least as well as the measured 50 x 50 one (bounds: 
     m = r.summary["metrics"]
     assert r.summary["status"] == "ok" and r.summary["steady_state"]["converged"], r.summary.get("steady_state")
     assert m["ghia_u_max_abs_dev"] < 0.040 and m["ghia_v_max_abs_dev"] < 0.022, m
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("re", "t_end"), [(400, 40), (1000, 60)])
+def test_re400_re1000_at_50x50_meet_the_issue_14_targets(re, t_end):
+    """Issue 14: 50 x 50 particles, max |u - Ghia| <= 0.03 and max |v - Ghia| <= 0.05 along the
+    centre lines, Ghia's table of the same Reynolds number.  NOT yet measured: a 1 s start-up run
+    at Re = 400 took 168 s on 2 shared cores (load 7, 969 steps), so these runs take about 2 h
+    (Re = 400, t = 40) and 3 h (Re = 1000, t = 60) under that load (docs/validation.md).  At
+    40 x 40 with quadratic reconstruction the deviations were 0.17 / 0.20 and 0.27 / 0.30."""
+    cfg = config.load(CFG, [*QUIET, "case.n=50", f"case.re={re}", f"time.t_end={t_end}",
+                            f"output.snapshots={t_end}"])
+    r = run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True)
+    m = r.summary["metrics"]
+    assert r.summary["status"] == "ok", r.summary["status"]
+    assert m["ghia_u_max_abs_dev"] <= 0.03 and m["ghia_v_max_abs_dev"] <= 0.05, m

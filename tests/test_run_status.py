@@ -393,7 +393,7 @@ def test_diffrax_solve_reports_a_nan_solve():
 # --------------------------------------------------------------------------------------------
 
 def test_readme_example_with_too_few_steps_names_the_admissible_count():
-    pb = build_problem(config.load("configs/taylor_green_2d.toml", ["case.n=16"]))
+    pb = build_problem(config.load("configs/taylor_green_2d.toml", ["case.n=16", "eos.c0=10"]))
     with pytest.raises(InputError, match=r"n_steps=100.*CFL limit .*n_steps >= 585"):
         make_simulate(pb, n_steps=100, checkpoint="nested")
 
@@ -401,7 +401,7 @@ def test_readme_example_with_too_few_steps_names_the_admissible_count():
 def test_cli_sensitivity_never_exits_0_on_a_bad_run(tmp_path, capsys, monkeypatch):
     from mlsph_jax.cli import main
 
-    rc = main(["sensitivity", "configs/taylor_green_2d.toml", "--set", "case.n=16", "--n-steps", "100",
+    rc = main(["sensitivity", "configs/taylor_green_2d.toml", "--set", "case.n=16", "eos.c0=10", "--n-steps", "100",
                "--wrt", "physics.mu", "--of", "ke_final", "--out", str(tmp_path / "a")])
     assert rc != 0 and "n_steps >= 585" in capsys.readouterr().err
     assert not (tmp_path / "a" / "sensitivity.json").exists()

@@ -137,6 +137,53 @@ def test_velocity_error_converges_at_second_order_or_better_on_a_perturbed_layou
     assert math.log2(e32 / e64) >= 1.8
 
 
+# -- the built-in config at its defaults (issue 14 targets) -------------------------------------
+
+CONFIG = Path(__file__).resolve().parents[1] / "configs" / "taylor_green_2d.toml"
+
+
+def _run_builtin(*sets: str) -> dict:
+    cfg = config.load(CONFIG, [*sets, "output.plots=false", "output.progress=false", "output.snapshots=1"])
+    return run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True).summary
+
+
+def test_builtin_config_coarse_run_keeps_its_kinetic_energy():
+    """configs/taylor_green_2d.toml at 16 x 16 to t* = 1 (Re = 100), its scheme as shipped (cubic
+    reconstruction + Thornber's low-Mach correction, c0 = 20).  Measured ke_rel_error 0.0152 (docs/
+    validation.md, "Taylor-Green defaults"); asserted + 30 %.  The previous default (plain Rusanov
+    at c0 = 10) is off by 50 % here (acoustic dissipation of the velocity jump), which the bound
+    rejects."""
+    s = _run_builtin("case.n=16")
+    m = s["metrics"]
+    assert s["status"] == "ok"
+    assert m["ke_rel_error"] < 0.0152 * 1.3
+    assert m["ke"] < 0.25                                     # decayed from E_k0 = 0.25
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("n", "target", "u_measured"), [
+    (25, 0.01, 1.25e-4),     # E_k error measured 6.3e-5 (plain Rusanov at c0 = 10: 0.075)
+    (50, 0.001, 3.96e-4),    # E_k error measured 7.8e-4 (Thornber at c0 = 10: 0.0022)
+])
+def test_builtin_config_meets_the_issue_14_targets(n, target, u_measured):
+    """Issue 14: E_k error at t* = 1 <= 1 % at 25 x 25 and <= 0.1 % at 50 x 50 (Cartesian), the
+    built-in config at its defaults (25 x 25: ~2 min, 50 x 50: ~13 min on 2 shared cores); the
+    velocity L2 error within its measured value + 25 %."""
+    m = _run_builtin(f"case.n={n}")["metrics"]
+    assert m["ke_rel_error"] <= target
+    assert m["l2_velocity_error"] < u_measured * 1.25
+
+
+@pytest.mark.slow
+def test_builtin_config_perturbed_layout_error_is_bounded():
+    """The perturbed 50 x 50 layout (+-0.15 dx, seed 0) at the built-in defaults: measured
+    ke_rel_error 0.0097 (plain Rusanov at c0 = 10: 0.0045); asserted + 25 %.  The issue's 0.1 %
+    target is NOT met on this layout (docs/validation.md, "Taylor-Green defaults": what the
+    perturbed layout loses)."""
+    m = _run_builtin("case.n=50", "case.layout=perturbed")["metrics"]
+    assert m["ke_rel_error"] < 0.0097 * 1.25
+
+
 # -- bad input ---------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("override, needle", [
