@@ -73,7 +73,7 @@ def interleaved(calls: dict, repeat: int) -> dict:
     return best
 
 
-def profile(n: int, frame: str, repeat: int, trace: str | None, chunk_steps: int = 10) -> dict:
+def profile(n: int, frame: str, repeat: int, trace: str | None, chunk_steps: int = 10, calls=None) -> dict:
     cfg = config.loads(BASE, [f"case.n={n}", f"scheme.frame={frame}", "time.t_end=0.01"])
     pb = build_problem(cfg)
     sc, dom, p, prm = pb.scheme, pb.domain, pb.particles, pb.params
@@ -94,7 +94,7 @@ def profile(n: int, frame: str, repeat: int, trace: str | None, chunk_steps: int
     per_stage = out["rhs_s"] + (out["neighbors_s"] + out["geometry_s"] if sc.moving else 0.0)
     out["rest_s"] = out["step_s"] - 3 * per_stage
     out["particle_steps_per_s"] = p.n / out["step_s"]
-    calls = {}
+    own = {}
     for skin in ((0.3, 0.0) if sc.moving else (0.0,)):
         ch = make_chunk(sc, dom, StepControl(dt_fixed=dt), chunk_steps, nspec=setup.nspec if sc.moving else None,
                         skin=skin)
@@ -105,10 +105,12 @@ def profile(n: int, frame: str, repeat: int, trace: str | None, chunk_steps: int
         out[f"{key}_compile_s"] = time.perf_counter() - t0
         r = c(*args)
         assert int(r.status) == 0 and int(r.step) == chunk_steps, int(r.status)
-        calls[key] = (c, args)
-    for k, v in interleaved(calls, repeat).items():
+        own[key] = (c, args)
+    for k, v in interleaved(own, repeat).items():
         out[f"{k}_step_s"] = v / chunk_steps
     out["chunk_particle_steps_per_s"] = p.n / out["chunk_step_s"]
+    if calls is not None:          # for the interleaved timing of every frame's chunks (main)
+        calls.update({(frame, k): (c, args, chunk_steps) for k, (c, args) in own.items()})
     if trace:
         c = jax.jit(step).lower(p, prm, g).compile()
         with jax.profiler.trace(str(Path(trace) / f"{frame}_{n}")):
@@ -126,9 +128,9 @@ def main(argv=None) -> int:
     ap.add_argument("--trace", default=None, help="folder for a jax.profiler trace of five steps")
     ap.add_argument("--chunk-steps", type=int, default=10, help="steps of the timed driver chunk")
     a = ap.parse_args(argv)
-    rows = []
+    rows, calls = [], {}
     for frame in a.frames:
-        r = profile(a.n, frame, a.repeat, a.trace, a.chunk_steps)
+        r = profile(a.n, frame, a.repeat, a.trace, a.chunk_steps, calls)
         rows.append(r)
         ms = {k: 1e3 * r[k] for k in ("neighbors_s", "geometry_s", "rhs_s", "step_s", "rest_s")}
         print(f"{frame:>9s} N={r['particles']}: step {ms['step_s']:.1f} ms = 3 x (rhs {ms['rhs_s']:.1f}"
@@ -140,11 +142,21 @@ def main(argv=None) -> int:
               f"({r['chunk_particle_steps_per_s']:.3e} particle-steps/s, compile {r['chunk_compile_s']:.1f} s)"
               + (f"; per-stage rebuilds {1e3 * r['chunk_rebuild_step_s']:.1f} ms/step" if 'chunk_rebuild_step_s' in r
                  else ""), flush=True)
-    if len(rows) > 1 and rows[0]["frame"] == "eulerian":
-        for r in rows[1:]:
-            print(f"{r['frame']} / eulerian chunk step: {r['chunk_step_s'] / rows[0]['chunk_step_s']:.2f}")
+    # every frame's chunks again, all interleaved in this process (A B C A B C ..., best of
+    # --repeat): ratios that contention on a shared machine does not skew
+    best = interleaved({k: (c, args) for k, (c, args, _) in calls.items()}, a.repeat)
+    inter = {f"{fr}/{k}": best[(fr, k)] / calls[(fr, k)][2] for fr, k in calls}
+    print("interleaved chunks, ms/step: " + ", ".join(f"{k} {1e3 * v:.1f}" for k, v in inter.items()), flush=True)
+    if ("eulerian", "chunk") in calls:
+        for fr in a.frames:
+            if fr != "eulerian":
+                ratio = inter[fr + "/chunk"] / inter["eulerian/chunk"]
+                verl = (f"; per-stage rebuilds / Verlet: {inter[fr + '/chunk_rebuild'] / inter[fr + '/chunk']:.2f}"
+                        if fr + "/chunk_rebuild" in inter else "")
+                print(f"{fr} / eulerian chunk step (interleaved): {ratio:.2f}{verl}", flush=True)
     OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps({"rows": rows, "load_average": list(np.round(__import__("os").getloadavg(), 2))},
+    load = list(np.round(__import__("os").getloadavg(), 2))
+    OUT.write_text(json.dumps({"rows": rows, "interleaved_chunk_step_s": inter, "load_average": load},
                               indent=1) + "\n")
     return 0
 
