@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import inspect
 
 import jax
 import jax.numpy as jnp
@@ -171,9 +172,11 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme, bo
     nv = F.shape[1]
     degree = scheme.reconstruction_degree
     Fc, wc, ppd = _cols(F), _cols(w), particles.ppd
-    fused = scheme.diffusive and degree > 0     # one fit serves the states and the diffusive flux
+    recon = scheme.component("reconstruction") if degree > 0 else None
+    # one fit serves the states and the diffusive flux (a user reconstruction without ``extra``:
+    # the separate pass)
+    fused = scheme.diffusive and degree > 0 and "extra" in inspect.signature(recon.midpoint_states).parameters
     if degree > 0:
-        recon = scheme.component("reconstruction")
         if fused:   # i-side states [N, K, nv] + the diffusive fields' midpoint values and gradients
             own, fitc = recon.midpoint_states(F, geom, degree, extra=diffusive_fields(prim, scheme))
             m_fit, nc = fitc.shape[1:]

@@ -34,7 +34,7 @@ from .eos import get_eos
 from .registry import Registry
 from .stencil import reverse_gather
 
-STRESSES: Registry = Registry("scheme.stress", protocol=("tensor", "planes"), doc="viscous stress laws")
+STRESSES: Registry = Registry("scheme.stress", protocol=("tensor",), doc="viscous stress laws")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -125,7 +125,12 @@ def _side_flux(a, xi, h, d: int, degree: int, heat: bool, mu, kappa, scheme, has
                 g = term if g is None else g + term
             row.append(g * inv_h)
         grad.append(row)
-    tau = STRESSES.get(scheme.stress, "scheme.stress").planes(grad[:d], mu, d)
+    law = STRESSES.get(scheme.stress, "scheme.stress")
+    if hasattr(law, "planes"):
+        tau = law.planes(grad[:d], mu, d)
+    else:                                   # a stress law with only the array form (protocol)
+        T = law.tensor(jnp.stack([jnp.stack(row, axis=-1) for row in grad[:d]], axis=-2), mu, d)
+        tau = [[T[..., r, c] for c in range(d)] for r in range(d)]
     rows = list(tau)
     if has_energy:
         e_row = []
