@@ -11,7 +11,11 @@ functions of the public API):
 * ``step``:      :func:`mlsph_jax.integrate.ssp_rk3_step` (three stages; for moving particles
   each stage rebuilds the list and the geometry, :func:`mlsph_jax.integrate.make_stage_geometry`);
 * ``rest`` = step - 3 rhs (Eulerian) or step - 3 (neighbors + geometry + rhs) (moving): the
-  Shu-Osher combinations, limiter plumbing, frame velocity outside the right-hand side.
+  Shu-Osher combinations, limiter plumbing, frame velocity outside the right-hand side;
+* ``chunk``:     the driver's jitted chunk (:func:`mlsph_jax.integrate.make_chunk`, fixed dt) of
+  ``--chunk-steps`` steps, per step: CFL and status reductions included; for moving particles
+  with the Verlet-skin lists (the driver's default) and, timed interleaved in the same process
+  (best of ``--repeat``), with per-stage rebuilds (``skin = 0``).
 
 ``--trace DIR`` also records a :mod:`jax.profiler` trace of five steps (open it with
 TensorBoard's profile plugin or Perfetto).
@@ -35,7 +39,7 @@ import numpy as np
 from mlsph_jax import config
 from mlsph_jax import neighbors as nb
 from mlsph_jax.cases import build_problem
-from mlsph_jax.integrate import make_stage_geometry, ssp_rk3_step
+from mlsph_jax.integrate import StepControl, initial_carry, make_chunk, make_stage_geometry, ssp_rk3_step
 from mlsph_jax.rhs import geometry, rhs
 from mlsph_jax.run import setup_run, smoothing_lengths
 
@@ -58,7 +62,18 @@ def timed(f, *args, repeat: int) -> tuple[float, float]:
     return comp, statistics.median(runs)
 
 
-def profile(n: int, frame: str, repeat: int, trace: str | None) -> dict:
+def interleaved(calls: dict, repeat: int) -> dict:
+    """Best-of-``repeat`` time of each compiled call, the calls alternating (A B A B ...)."""
+    best = dict.fromkeys(calls, float("inf"))
+    for _ in range(repeat):
+        for k, (f, args) in calls.items():
+            t0 = time.perf_counter()
+            jax.block_until_ready(f(*args))
+            best[k] = min(best[k], time.perf_counter() - t0)
+    return best
+
+
+def profile(n: int, frame: str, repeat: int, trace: str | None, chunk_steps: int = 10, calls=None) -> dict:
     cfg = config.loads(BASE, [f"case.n={n}", f"scheme.frame={frame}", "time.t_end=0.01"])
     pb = build_problem(cfg)
     sc, dom, p, prm = pb.scheme, pb.domain, pb.particles, pb.params
@@ -79,6 +94,23 @@ def profile(n: int, frame: str, repeat: int, trace: str | None) -> dict:
     per_stage = out["rhs_s"] + (out["neighbors_s"] + out["geometry_s"] if sc.moving else 0.0)
     out["rest_s"] = out["step_s"] - 3 * per_stage
     out["particle_steps_per_s"] = p.n / out["step_s"]
+    own = {}
+    for skin in ((0.3, 0.0) if sc.moving else (0.0,)):
+        ch = make_chunk(sc, dom, StepControl(dt_fixed=dt), chunk_steps, nspec=setup.nspec if sc.moving else None,
+                        skin=skin)
+        args = (initial_carry(p), prm, None if sc.moving else g, jax.numpy.asarray(1e9))
+        key = "chunk" if skin or not sc.moving else "chunk_rebuild"
+        t0 = time.perf_counter()
+        c = ch.lower(*args).compile()
+        out[f"{key}_compile_s"] = time.perf_counter() - t0
+        r = c(*args)
+        assert int(r.status) == 0 and int(r.step) == chunk_steps, int(r.status)
+        own[key] = (c, args)
+    for k, v in interleaved(own, repeat).items():
+        out[f"{k}_step_s"] = v / chunk_steps
+    out["chunk_particle_steps_per_s"] = p.n / out["chunk_step_s"]
+    if calls is not None:          # for the interleaved timing of every frame's chunks (main)
+        calls.update({(frame, k): (c, args, chunk_steps) for k, (c, args) in own.items()})
     if trace:
         c = jax.jit(step).lower(p, prm, g).compile()
         with jax.profiler.trace(str(Path(trace) / f"{frame}_{n}")):
@@ -94,10 +126,11 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", nargs="+", default=["eulerian", "ale_shift"])
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--trace", default=None, help="folder for a jax.profiler trace of five steps")
+    ap.add_argument("--chunk-steps", type=int, default=10, help="steps of the timed driver chunk")
     a = ap.parse_args(argv)
-    rows = []
+    rows, calls = [], {}
     for frame in a.frames:
-        r = profile(a.n, frame, a.repeat, a.trace)
+        r = profile(a.n, frame, a.repeat, a.trace, a.chunk_steps, calls)
         rows.append(r)
         ms = {k: 1e3 * r[k] for k in ("neighbors_s", "geometry_s", "rhs_s", "step_s", "rest_s")}
         print(f"{frame:>9s} N={r['particles']}: step {ms['step_s']:.1f} ms = 3 x (rhs {ms['rhs_s']:.1f}"
@@ -105,8 +138,25 @@ def main(argv=None) -> int:
                  else "") + f") + rest {ms['rest_s']:.1f} ms; (geometry alone {ms['geometry_s']:.1f} ms, "
               f"neighbours alone {ms['neighbors_s']:.1f} ms); {r['particle_steps_per_s']:.3e} particle-steps/s",
               flush=True)
+        print(f"{'':>9s} driver chunk: {1e3 * r['chunk_step_s']:.1f} ms/step "
+              f"({r['chunk_particle_steps_per_s']:.3e} particle-steps/s, compile {r['chunk_compile_s']:.1f} s)"
+              + (f"; per-stage rebuilds {1e3 * r['chunk_rebuild_step_s']:.1f} ms/step" if 'chunk_rebuild_step_s' in r
+                 else ""), flush=True)
+    # every frame's chunks again, all interleaved in this process (A B C A B C ..., best of
+    # --repeat): ratios that contention on a shared machine does not skew
+    best = interleaved({k: (c, args) for k, (c, args, _) in calls.items()}, a.repeat)
+    inter = {f"{fr}/{k}": best[(fr, k)] / calls[(fr, k)][2] for fr, k in calls}
+    print("interleaved chunks, ms/step: " + ", ".join(f"{k} {1e3 * v:.1f}" for k, v in inter.items()), flush=True)
+    if ("eulerian", "chunk") in calls:
+        for fr in a.frames:
+            if fr != "eulerian":
+                ratio = inter[fr + "/chunk"] / inter["eulerian/chunk"]
+                verl = (f"; per-stage rebuilds / Verlet: {inter[fr + '/chunk_rebuild'] / inter[fr + '/chunk']:.2f}"
+                        if fr + "/chunk_rebuild" in inter else "")
+                print(f"{fr} / eulerian chunk step (interleaved): {ratio:.2f}{verl}", flush=True)
     OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps({"rows": rows, "load_average": list(np.round(__import__("os").getloadavg(), 2))},
+    load = list(np.round(__import__("os").getloadavg(), 2))
+    OUT.write_text(json.dumps({"rows": rows, "interleaved_chunk_step_s": inter, "load_average": load},
                               indent=1) + "\n")
     return 0
 

@@ -30,6 +30,7 @@ import dataclasses
 
 import jax.numpy as jnp
 
+from .approximation import mls
 from .eos import to_primitive
 from .errors import InputError
 from .kernels import get_kernel
@@ -103,8 +104,13 @@ FRAMES.register("ale_shift", ShiftedALE())
 
 def _inside_support(geom, scheme):
     """Pairs strictly inside i's support (relative margin): lattice neighbours at exactly the
-    cut-off are in or out of the list by round-off, which must not break the lattice's symmetry."""
-    r2 = jnp.sum(geom.dx * geom.dx, axis=-1)
+    cut-off are in or out of the list by round-off, which must not break the lattice's symmetry.
+    (r^2 summed component by component: XLA:CPU's reduction over a length-d axis costs as much
+    as the whole drift.)"""
+    dx = [geom.dx[..., a] for a in range(geom.dx.shape[-1])]
+    r2 = dx[0] * dx[0]
+    for c in dx[1:]:
+        r2 = r2 + c * c
     reach = scheme.support * geom.h[:, None]
     return r2, geom.pair_mask & (r2 > 0) & (r2 < (reach * (1.0 - 1e-9)) ** 2)
 
@@ -112,15 +118,18 @@ def _inside_support(geom, scheme):
 @dataclasses.dataclass(frozen=True)
 class XuShift:
     """Xu et al. (2009) type repulsion: drift_i = 1/n_i sum_j (r_i / r_ij)^2 (x_i - x_j) / r_ij over
-    the n_i neighbours strictly inside i's support, r_i their mean distance (SPEC §9 default)."""
+    the n_i neighbours strictly inside i's support, r_i their mean distance (SPEC §9 default).
+    Two passes over the stencil, each one variadic reduction (:func:`mls.stencil_sums`)."""
 
     def drift(self, geom, scheme, vol):
         r2, pos = _inside_support(geom, scheme)
         r = jnp.sqrt(jnp.where(pos, r2, 1.0))
-        cnt = jnp.maximum(jnp.sum(pos, axis=1), 1)
-        rbar = jnp.sum(jnp.where(pos, r, 0.0), axis=1) / cnt
+        n_in, r_sum = mls.stencil_sums([pos.astype(r.dtype), jnp.where(pos, r, 0.0)])
+        cnt = jnp.maximum(n_in, 1.0)
+        rbar = r_sum / cnt
         wt = jnp.where(pos, (rbar[:, None] / r) ** 2 / r, 0.0)
-        return -jnp.sum(wt[..., None] * geom.dx, axis=1) / cnt[:, None]   # dx = x_j - x_i
+        sums = mls.stencil_sums([wt * geom.dx[..., a] for a in range(geom.dx.shape[-1])])
+        return -jnp.stack(sums, axis=-1) / cnt[:, None]   # dx = x_j - x_i
 
 
 @dataclasses.dataclass(frozen=True)

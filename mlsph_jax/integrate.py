@@ -23,6 +23,7 @@ import jax.numpy as jnp
 
 from . import fallback
 from . import neighbors as nb
+from . import verlet
 from .eos import get_eos, to_primitive
 from .kernels import safe_norm
 from .rhs import Geometry, frame_velocity, geometry, rhs
@@ -31,7 +32,8 @@ from .state import Domain, Kind, Params, Particles, tiny
 from .status import Status, combine, state_status
 
 __all__ = ["MOOD_STATS", "Carry", "Status", "StepControl", "cfl_dt", "cfl_limiting_particle", "initial_carry",
-           "make_chunk", "make_stage_geometry", "ssp_rk3_step", "state_status", "static_geometry", "step_status"]
+           "make_chunk", "make_stage_geometry", "make_verlet_stage_geometry", "ssp_rk3_step", "state_status",
+           "static_geometry", "step_status"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -128,6 +130,27 @@ def make_stage_geometry(scheme: Scheme, domain: Domain, nspec):
     return stage_geometry
 
 
+def make_verlet_stage_geometry(scheme: Scheme, domain: Domain, nspec, skin: float = verlet.VERLET_SKIN):
+    """``(init, stage_geometry)`` for moving particles with a Verlet-skin candidate list
+    (:mod:`mlsph_jax.verlet`): ``init(p)`` the initial (stale) state, ``stage_geometry(p, v) ->
+    (Geometry, v)`` restricts them to the stage's stencil (rebuilding them first when a particle
+    has moved half the skin).  The lists, hence the geometries, are those of
+    :func:`make_stage_geometry`."""
+    cspec = verlet.candidate_spec(nspec, skin)
+
+    def h_of(p: Particles):
+        return scheme.beta * p.vol ** (1.0 / p.dim)
+
+    def init(p: Particles):             # built by the first stage (one neighbour kernel in the chunk)
+        return verlet.stale(p.x, h_of(p), cspec)
+
+    def stage_geometry(p: Particles, v):
+        nl, v = verlet.refresh(v, p.x, h_of(p), nspec, cspec, skin)
+        return with_overflow_bits(geometry(p.x, p.vol, nl, scheme, domain), nl), v
+
+    return init, stage_geometry
+
+
 def with_overflow_bits(geom: Geometry, nl) -> Geometry:
     """``geom`` with ``overflow`` holding the list's cause bits (``NeighborList.overflow_bits``,
     equal to the :class:`Status` neighbour bits) instead of a bool."""
@@ -147,7 +170,7 @@ SSP_RK3_A = (0.0, 0.75, 1.0 / 3.0)  # Shu-Osher form: z_{k+1} = a_k y + b_k (z_k
 SSP_RK3_B = (1.0, 0.25, 2.0 / 3.0)
 
 
-def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, boundary=None):
+def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, boundary=None, cache=None):
     """One SSP-RK3 step.  ``geom_fn(p)`` returns the Geometry of a stage (constant for Eulerian
     runs).  Each stage is a forward-Euler sub-step E = z + dt L(z) combined as a y^n + b E; with
     the limiter of ``scheme.limiter`` computes the sub-step (MOOD: :mod:`mlsph_jax.mood`).
@@ -162,16 +185,23 @@ def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, boun
     side is traced (and compiled) once, not three times.  ``boundary`` (e.g.
     :class:`mlsph_jax.boundaries.MirrorWalls`) regenerates ghost particles before every stage
     and after the step.
+
+    ``cache`` (e.g. the Verlet candidate list of :func:`make_verlet_stage_geometry`): then
+    ``geom_fn(p, cache) -> (Geometry, cache)``, the cache is threaded through the stages and
+    returned as a fourth output.
     """
     limiter = scheme.component("limiter")
     dt = jnp.asarray(dt, p.q.dtype)  # the state's precision (run.precision); the time itself stays float64
 
     def stage(carry, ab):
-        z, overflow, ppd_min, n_evals, unresolved, unres_particle, deg_min = carry
+        z, overflow, ppd_min, n_evals, unresolved, unres_particle, deg_min, cch = carry
         a, b = ab
         if boundary is not None:
             z = boundary.apply(z, params)
-        geom = geom_fn(z)
+        if cch is None:
+            geom = geom_fn(z)
+        else:
+            geom, cch = geom_fn(z, cch)
 
         def euler(zz):
             return _euler(zz, dt, rhs(zz, params, geom, scheme, boundary))
@@ -184,17 +214,20 @@ def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, boun
         n_evals, unresolved = n_evals + n, unresolved + jnp.any(unres).astype(jnp.int32)
         cand = _combine(a, p, b, e)
         deg_min = jnp.minimum(deg_min, geom.degree)
-        return (cand, overflow | overflow_bits(geom), ppd_min, n_evals, unresolved, unres_particle, deg_min), None
+        return (cand, overflow | overflow_bits(geom), ppd_min, n_evals, unresolved, unres_particle, deg_min,
+                cch), None
 
     coeffs = (jnp.asarray(SSP_RK3_A, p.q.dtype), jnp.asarray(SSP_RK3_B, p.q.dtype))
     ppd_start = jnp.full_like(p.ppd, scheme.reconstruction_degree) if limiter.needs_high_order else p.ppd
     zero = jnp.asarray(0, jnp.int32)
     deg0 = jnp.full((p.n, 2), jnp.iinfo(jnp.int32).max, jnp.int32)
-    init = (p, zero, ppd_start, zero, zero, jnp.asarray(-1, jnp.int32), deg0)
-    (out, overflow, ppd_min, n_evals, unresolved, unres_particle, deg_min), _ = jax.lax.scan(stage, init, coeffs)
+    init = (p, zero, ppd_start, zero, zero, jnp.asarray(-1, jnp.int32), deg0, cache)
+    (out, overflow, ppd_min, n_evals, unresolved, unres_particle, deg_min, cache), _ = jax.lax.scan(
+        stage, init, coeffs)
     if boundary is not None:
         out = boundary.apply(out, params)
-    return out.replace(ppd=ppd_min), overflow, (ppd_min, n_evals, unresolved, unres_particle, deg_min)
+    res = out.replace(ppd=ppd_min), overflow, (ppd_min, n_evals, unresolved, unres_particle, deg_min)
+    return res if cache is None else (*res, cache)
 
 
 def _mood_stats(stats, p: Particles, scheme: Scheme):
@@ -254,13 +287,16 @@ FIXED_DT_SLACK = 2.0
 
 
 def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: int, nspec=None, boundary=None,
-               sharding=None):
+               sharding=None, skin: float = verlet.VERLET_SKIN):
     """Build ``chunk(carry, params, static_geom, t_stop, step_stop=None) -> carry`` running ``n_steps``
     steps (steps once ``carry.t`` reaches ``t_stop`` or ``carry.step`` reaches ``step_stop`` are no-ops:
     ``time.max_steps`` is exact).
 
     For Eulerian schemes pass the precomputed Geometry as ``static_geom``; for moving particles
-    pass ``None`` and a neighbour spec ``nspec`` (lists rebuilt every stage).  ``sharding`` (a
+    pass ``None`` and a neighbour spec ``nspec``: the list of every stage is restricted from a
+    Verlet-skin candidate list built at the chunk's start and rebuilt only when a particle has
+    moved half the skin (:mod:`mlsph_jax.verlet`; ``skin`` as a fraction of ``support max h``,
+    0 = rebuild every stage; the same lists either way).  ``sharding`` (a
     :class:`mlsph_jax.sharding.ParticleSharding`, multi-device runs) pins the layout of the
     carry and the geometry to the particle-axis sharding at entry and exit; the partitioner
     does the rest.
@@ -269,20 +305,29 @@ def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: in
     def chunk(carry: Carry, params: Params, static_geom, t_stop, step_stop=None):
         if sharding is not None:
             carry, static_geom = sharding.constrain((carry, static_geom))
-        geom_fn = (lambda p: static_geom) if not scheme.moving else make_stage_geometry(scheme, domain, nspec)
+        cache = None
+        if not scheme.moving:
+            geom_fn = lambda p: static_geom  # noqa: E731
+        elif skin > 0:
+            init, geom_fn = make_verlet_stage_geometry(scheme, domain, nspec, skin)
+            cache = init(carry.particles)
+        else:
+            geom_fn = make_stage_geometry(scheme, domain, nspec)
 
-        def one(c: Carry, _):
+        def one(cv, _):
+            c, v = cv
             active = (c.status == Status.OK) & (c.t < t_stop)
             if step_stop is not None:
                 active = active & (c.step < step_stop)
 
-            def advance(c: Carry) -> Carry:
+            def advance(cv):
+                c, v = cv
                 dt = (jnp.asarray(control.dt_fixed) if control.dt_fixed > 0
                       else cfl_dt(c.particles, params, scheme, control.cfl, control.cfl_viscous))
                 remaining = t_stop - c.t
                 last = dt >= remaining
                 dt = jnp.minimum(dt, remaining)
-                newp, overflow, stats = ssp_rk3_step(c.particles, params, dt, scheme, geom_fn, boundary)
+                newp, overflow, stats, *vs = ssp_rk3_step(c.particles, params, dt, scheme, geom_fn, boundary, v)
                 st, bad = step_status(c.particles, newp, params, scheme, dt, overflow, stats,
                                       dt_fixed=control.dt_fixed > 0, cfl=control.cfl,
                                       cfl_viscous=control.cfl_viscous, dt_min=control.dt_min, last=last,
@@ -293,14 +338,15 @@ def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: in
                 inc = _mood_stats(stats, newp, scheme)
                 mood = jnp.where(ok, c.mood.at[0].set(jnp.maximum(c.mood[0], inc[0])).at[1:].add(inc[1:]), c.mood)
                 fb = fallback.update_stats(c.fallback, fallback.step_fractions(stats[4], c.particles.kind, scheme))
-                return Carry(keep(newp, c.particles), jnp.where(ok, t_new, c.t),
-                             c.step + ok.astype(c.step.dtype), st, jnp.where(ok, c.bad_particle, bad),
-                             jnp.where(ok, dt, c.dt_last), mood, jnp.where(ok, stats[4], c.degree),
-                             jnp.where(ok, fb, c.fallback))
+                return (Carry(keep(newp, c.particles), jnp.where(ok, t_new, c.t),
+                              c.step + ok.astype(c.step.dtype), st, jnp.where(ok, c.bad_particle, bad),
+                              jnp.where(ok, dt, c.dt_last), mood, jnp.where(ok, stats[4], c.degree),
+                              jnp.where(ok, fb, c.fallback)),
+                        vs[0] if vs else v)       # (candidates stay valid whatever the step's fate)
 
-            return jax.lax.cond(active, advance, lambda c: c, c), None
+            return jax.lax.cond(active, advance, lambda cv: cv, (c, v)), None
 
-        out, _ = jax.lax.scan(one, carry, None, length=n_steps)
+        (out, _), _ = jax.lax.scan(one, (carry, cache), None, length=n_steps)
         return out if sharding is None else sharding.constrain(out)
 
     return jax.jit(chunk)

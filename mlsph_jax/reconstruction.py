@@ -7,7 +7,8 @@ from i (U^-_ij) and from j (U^+_ij).  Both come from the fixed-centre MLS fit of
 p((y - x_i)/h_i)^T C_i F_S); the j-side state is never recomputed: it is the i-side state of the
 reverse pair, gathered with the neighbour list's reverse-slot map.
 
-A **reconstruction** has ``midpoint_states(F, geom, degree) -> own[N, K, nv]`` (the i-side states):
+A **reconstruction** has ``midpoint_states(F, geom, degree, extra=None) -> own[N, K, nv]`` (the i-side
+states; with ``extra`` the fit also serves the diffusive fields, see :func:`fitted_midpoint_states`):
 
 * ``taylor`` (default): F_i + P_i(xi_ij) - P_i(0), i.e. U_i plus the MLS derivatives of U at x_i
   (thesis eq. 3.11); stable on irregular layouts;
@@ -44,21 +45,29 @@ def _cols(a):
     return [a[..., k] for k in range(a.shape[-1])]
 
 
-def fitted_midpoint_states(F, geom, degree: int, relative: bool):
+def fitted_midpoint_states(F, geom, degree: int, relative: bool, extra=None):
     """i-side midpoint states ``own[N, K, nv]``: p(xi_ij)^T C_i F_S (``relative``: F_i + P_i(xi) -
-    P_i(0)), with xi_ij = (x_ij - x_i)/h_i; one blocked pass (fit and evaluation)."""
+    P_i(0)), with xi_ij = (x_ij - x_i)/h_i; one blocked pass (fit and evaluation).
+
+    ``extra[N, nc]`` (the diffusive fields, :func:`mlsph_jax.viscous.diffusive_fields`): the same
+    pass also fits them (same coefficients C_i) and the function returns ``(own, a[N, m, nc])``
+    with their fit coefficients a_i = C_i f_S, which the pair sweep evaluates at the midpoints."""
     n, k = geom.idx.shape
     nv = F.shape[1]
     jsafe = geom.jsafe
     C = geom.coeffs
     m = C.shape[1]
     Fc = _cols(F)
+    Ec = [] if extra is None else _cols(extra)
+    nc = len(Ec)
+    nf = nv + nc
 
     def block(s, b):
         jb = _rows(jsafe, s, b)
         Cb = _rows(C, s, b)
-        Fj = [c[jb] for c in Fc]
-        a = mls.stencil_sums([Cb[:, mm, :] * Fj[v] for mm in range(m) for v in range(nv)])
+        Fj = [c[jb] for c in Fc + Ec]
+        a = mls.stencil_sums([Cb[:, mm, :] * Fj[v] for mm in range(m) for v in range(nf)])
+        ext = [a[mm * nf + v] for mm in range(m) for v in range(nv, nf)]
         a = [t[:, None] for t in a]                            # a_i = C_i F_S, [b, 1] each
         dx = _rows(geom.dx, s, b)
         hb = _rows(geom.h, s, b)[:, None]
@@ -67,30 +76,33 @@ def fitted_midpoint_states(F, geom, degree: int, relative: bool):
         for v in range(nv):
             o = a[v]
             for mm in range(1, m):
-                o = o + P[mm] * a[mm * nv + v]
+                o = o + P[mm] * a[mm * nf + v]
             if relative:
                 o = _rows(Fc[v], s, b)[:, None] + o - a[v]       # F_i + P_i(xi) - P_i(0)
             own.append(jnp.broadcast_to(o, jb.shape))
-        return (jnp.stack(own, axis=-1),)
+        if not nc:
+            return (jnp.stack(own, axis=-1),)
+        return jnp.stack(own, axis=-1), jnp.stack(ext, axis=-1).reshape(b, m, nc)
 
-    (own,) = apx.row_blocks(block, n, apx.block_rows(n, k), [((n, k, nv), F.dtype)])
-    return own
+    outs = [((n, k, nv), F.dtype)] + ([((n, m, nc), F.dtype)] if nc else [])
+    res = apx.row_blocks(block, n, apx.block_rows(n, k), outs)
+    return res if nc else res[0]
 
 
 @dataclasses.dataclass(frozen=True)
 class TaylorReconstruction:
     """U^-_ij = U_i + grad U_i . d + 1/2 d^T H_i d + ... with MLS derivatives (thesis eq. 3.11)."""
 
-    def midpoint_states(self, F, geom, degree: int):
-        return fitted_midpoint_states(F, geom, degree, relative=True)
+    def midpoint_states(self, F, geom, degree: int, extra=None):
+        return fitted_midpoint_states(F, geom, degree, relative=True, extra=extra)
 
 
 @dataclasses.dataclass(frozen=True)
 class DirectMLSReconstruction:
     """U^-_ij = p((x_ij - x_i)/h_i)^T C_i U_S, the MLS fit at the midpoint (thesis eq. 4.39)."""
 
-    def midpoint_states(self, F, geom, degree: int):
-        return fitted_midpoint_states(F, geom, degree, relative=False)
+    def midpoint_states(self, F, geom, degree: int, extra=None):
+        return fitted_midpoint_states(F, geom, degree, relative=False, extra=extra)
 
 
 RECONSTRUCTIONS.register("taylor", TaylorReconstruction())

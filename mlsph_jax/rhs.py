@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import inspect
 
 import jax
 import jax.numpy as jnp
@@ -62,7 +63,7 @@ from .reconstruction import reconstruct
 from .scheme import Scheme
 from .state import Domain, Kind, Params, Particles
 from .stencil import flat_reverse_index
-from .viscous import viscous_terms
+from .viscous import diffusive_fields, pair_diffusive_flux, self_diffusive_flux, viscous_terms
 
 __all__ = ["Geometry", "evaluate", "frame_velocity", "geometry", "reconstruct", "rhs", "shifting_velocity", "source"]
 
@@ -177,9 +178,18 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme, bo
     nv = F.shape[1]
     degree = scheme.reconstruction_degree
     Fc, wc, ppd = _cols(F), _cols(w), particles.ppd
+    recon = scheme.component("reconstruction") if degree > 0 else None
+    # one fit serves the states and the diffusive flux (a user reconstruction without ``extra``:
+    # the separate pass)
+    fused = scheme.diffusive and degree > 0 and "extra" in inspect.signature(recon.midpoint_states).parameters
     if degree > 0:
-        own = scheme.component("reconstruction").midpoint_states(F, geom, degree)   # i-side states, [N, K, nv]
-        own_flat = own.reshape(n * k, nv)
+        if fused:   # i-side states [N, K, nv] + the diffusive fields' midpoint values and gradients
+            own, fitc = recon.midpoint_states(F, geom, degree, extra=diffusive_fields(prim, scheme))
+            m_fit, nc = fitc.shape[1:]
+            fit_flat = fitc.reshape(n, m_fit * nc)
+        else:
+            own = recon.midpoint_states(F, geom, degree)                            # i-side states, [N, K, nv]
+        own_flat = own.reshape(n * k, own.shape[-1])
 
     def block(s, b):
         jb = _rows(jsafe, s, b)
@@ -217,6 +227,14 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme, bo
         if parachute is not None:                   # (needs MOOD, hence degree > 0 and `high`)
             G1 = parachute.pair_flux(Fm, Fp, w_ij, A, n_pair, eos, params, scheme)
             GA = [jnp.where(high, g, g1) for g, g1 in zip(GA, G1, strict=True)]
+        if fused:                                   # G - D_ij (D never order-reduced by MOOD)
+            ai = _rows(fit_flat, s, b)
+            ai = [[ai[:, mm * nc + c, None] for c in range(nc)] for mm in range(m_fit)]
+            aj = fit_flat[jb]
+            aj = [[aj[..., mm * nc + c] for c in range(nc)] for mm in range(m_fit)]
+            DA = pair_diffusive_flux(ai, aj, _cols(_rows(geom.dx, s, b)), _rows(geom.h, s, b)[:, None],
+                                     geom.h[jb], A, degree, scheme, params)
+            GA = [g - dd for g, dd in zip(GA, DA, strict=True)]
         pm = _rows(geom.pair_mask, s, b)
         terms = [jnp.where(pm, g, 0.0) for g in GA] + A
         if not eulerian:
@@ -231,7 +249,9 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme, bo
     dq = -sums[:, :nv]
     if scheme.self_flux:
         dq = dq + ale_flux_dot(U, prim, w, sums[:, nv:nv + d], eos)
-    if scheme.diffusive:
+    if fused and scheme.self_flux:
+        dq = dq - self_diffusive_flux(prim, fitc, geom.h, sums[:, nv:nv + d], scheme, params)
+    elif scheme.diffusive and not fused:
         dq = dq + viscous_terms(prim, geom, scheme, params, scheme.fit_degree)
     dq = dq + vol[:, None] * source(U, prim, params, eos)
     if eulerian:

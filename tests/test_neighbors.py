@@ -12,6 +12,7 @@ import itertools
 import math
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -338,3 +339,58 @@ def test_brute_force_reference_small_example():
     got = nb.brute_force(x, h, domain, support=2.0)
     # |0 - .05| = .05 < 2*.03 ; |0 - .95| wraps to .05 < .06 ; .05-.95 wraps to .1 >= .02
     assert [r.tolist() for r in got] == [[0, 1, 2], [0, 1], [0, 2], [3]]
+
+
+# -- Verlet-skin candidate lists (mlsph_jax.verlet) ----------------------------------------------
+
+def test_verlet_candidates_restricted_to_the_stencil_are_the_rebuilt_list():
+    """Candidates built with a skin at x0, restricted at positions and smoothing lengths that moved
+    by less than the skin allows, give exactly the list a fresh build gives there (indices,
+    reverse slots, counts, bits); the candidates are only rebuilt once a particle has moved half
+    the skin."""
+    from mlsph_jax import verlet
+
+    rng = np.random.default_rng(3)
+    n1 = 16
+    g = (np.stack(np.meshgrid(np.arange(n1), np.arange(n1), indexing="ij"), -1).reshape(-1, 2) + 0.5) / n1
+    x0 = np.mod(g + rng.uniform(-0.2, 0.2, g.shape) / n1, 1.0)
+    h0 = np.full(len(x0), 1.5 / n1)
+    dom = Domain((0.0, 0.0), (1.0, 1.0), (True, True))
+    spec, _ = nb.allocate(x0, h0, dom, support=2.0, headroom=1.6, cell_size=2.0 * 1.5 * h0.max())
+    cspec = verlet.candidate_spec(spec)
+    v = jax.jit(verlet.build, static_argnums=(2, 3))(jnp.asarray(x0), jnp.asarray(h0), spec, cspec)
+    skin = float(v.skin)
+    assert skin == pytest.approx(verlet.VERLET_SKIN * 2.0 * h0.max())
+    assert int(v.cand.count.max()) > int(nb.update(x0, h0, spec).count.max())     # the skin adds candidates
+    refresh = jax.jit(verlet.refresh, static_argnums=(3, 4))
+    for scale, rebuilt in ((0.2, False), (0.4, False), (1.5, True)):
+        # displacements up to scale * skin / 2 in length; smoothing lengths grow a little
+        step = rng.normal(size=x0.shape)
+        step *= (scale * 0.5 * skin / np.sqrt(2.0)) * (rng.uniform(0.5, 1.0, len(x0)) / np.abs(step).max(1))[:, None]
+        x1 = np.mod(x0 + step, 1.0)
+        h1 = h0 * (1.0 + (0.02 * skin if not rebuilt else 0.0))
+        nl, v1 = refresh(v, jnp.asarray(x1), jnp.asarray(h1), spec, cspec)
+        ref = nb.update(x1, h1, spec)
+        assert not bool(ref.overflow)
+        for f in ("idx", "mask", "rev", "count", "overflow_bits"):
+            np.testing.assert_array_equal(np.asarray(getattr(nl, f)), np.asarray(getattr(ref, f)), err_msg=f)
+        assert bool(jnp.any(v1.x_ref != v.x_ref)) == rebuilt
+        # the stencil changed: the test is not vacuous
+        assert not np.array_equal(np.asarray(ref.idx), np.asarray(nb.update(x0, h0, spec).idx))
+
+
+def test_verlet_restriction_reports_a_row_overflow():
+    """A stencil larger than the capacity K sets the row bit of the restricted list (the
+    candidate capacity is larger than K, so the candidates alone would not)."""
+    from mlsph_jax import verlet
+
+    x = np.random.default_rng(0).uniform(0.0, 1.0, (400, 2))
+    h = np.full(400, 0.06)
+    dom = Domain((0.0, 0.0), (1.0, 1.0), (True, True))
+    spec, _ = nb.allocate(x, h, dom, support=2.0, headroom=1.0, cell_size=0.18)
+    small = dataclasses.replace(spec, capacity=spec.capacity - 2)
+    cspec = verlet.candidate_spec(small)
+    v = jax.jit(verlet.build, static_argnums=(2, 3))(jnp.asarray(x), jnp.asarray(h), small, cspec)
+    assert int(v.cand.overflow_bits) == 0
+    nl, _ = jax.jit(verlet.refresh, static_argnums=(3, 4))(v, jnp.asarray(x), jnp.asarray(h), small, cspec)
+    assert int(nl.overflow_bits) == nb.OVERFLOW_ROW == int(nb.update(x, h, small).overflow_bits)

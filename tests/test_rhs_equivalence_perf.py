@@ -407,3 +407,38 @@ def test_rhs_parameter_gradient_equals_reference():
     g_new = jax.jit(jax.grad(loss(rhs)))(params)["eos.gamma"]
     g_ref = jax.jit(jax.grad(loss(lambda *a: ref_rhs(*a)[:3])))(params)["eos.gamma"]
     np.testing.assert_allclose(float(g_new), float(g_ref), rtol=1e-9)
+
+
+DIFFUSIVE_VARIANTS = [
+    dict(viscous=True, heat_conduction=True),
+    dict(heat_conduction=True, stress="incompressible", frame="lagrangian", reconstruction="mls_direct",
+         self_flux=False),
+    dict(viscous=True, eos="tait", frame="lagrangian", reconstruction_variables="primitive"),
+]
+
+
+@pytest.mark.parametrize("change", DIFFUSIVE_VARIANTS, ids=str)
+def test_diffusive_terms_in_the_pair_sweep_equal_the_separate_pass(change):
+    """The reconstruction's fit serves the viscous and heat fluxes inside the one pair sweep; the
+    result equals the inviscid right-hand side plus the separate array pass
+    :func:`mlsph_jax.viscous.viscous_terms` (thesis eq. 4.40) to round-off."""
+    from mlsph_jax.viscous import viscous_terms
+
+    scheme = dataclasses.replace(MLS2, **change)
+    particles, params, nl = setup(scheme, eos=scheme.eos)
+    params = params.updated({"physics.mu": 0.05, "physics.kappa": 0.07})
+    geom = jax.jit(lambda p, nl: geometry(p.x, p.vol, nl, scheme, DOMAIN))(particles, nl)
+    inviscid = dataclasses.replace(scheme, viscous=False, heat_conduction=False)
+
+    def ref(p, prm, g):
+        out = rhs(p, prm, g, inviscid)
+        eos = get_eos(scheme.eos)
+        visc = viscous_terms(to_primitive(p.q / p.vol[:, None], eos, prm), g, scheme, prm, scheme.fit_degree)
+        return out[0], out[1], out[2] + jnp.where((p.kind == Kind.FLUID)[:, None], visc, 0.0), visc
+
+    new = jax.jit(lambda p, prm, g: rhs(p, prm, g, scheme))(particles, params, geom)
+    old = jax.jit(ref)(particles, params, geom)
+    assert float(jnp.abs(old[3]).max()) > 1e-3          # the diffusive terms are not negligible
+    close(new[2], old[2], scale=float(jnp.abs(old[2]).max() + jnp.abs(old[3]).max()))
+    np.testing.assert_array_equal(np.asarray(new[0]), np.asarray(old[0]))
+    np.testing.assert_array_equal(np.asarray(new[1]), np.asarray(old[1]))
