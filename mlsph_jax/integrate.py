@@ -21,9 +21,8 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from . import fallback
+from . import fallback, verlet
 from . import neighbors as nb
-from . import verlet
 from .eos import get_eos, to_primitive
 from .kernels import safe_norm
 from .rhs import Geometry, frame_velocity, geometry, rhs
