@@ -116,6 +116,7 @@ def test_sensitivity_cli(tmp_path):
     assert main(["sensitivity", "configs/riemann_r1_tait.toml", "--wrt", "eos.nope", "--of", "ke_final"]) == 2
 
 
+@pytest.mark.slow   # 57 s; the default suite recovers the same viscosity through `mlsph calibrate` below
 def test_calibration_recovers_the_taylor_green_viscosity(tmp_path):
     """Experiment (a) at a coarse resolution: the viscosity of a Taylor-Green run (Re = 100,
     8 x 8 particles, 30 steps: the fewest whose dt is within the CFL limit, 29, rounded up to a
