@@ -93,6 +93,9 @@ def fitted_midpoint_states(F, geom, degree: int, relative: bool, extra=None):
 class TaylorReconstruction:
     """U^-_ij = U_i + grad U_i . d + 1/2 d^T H_i d + ... with MLS derivatives (thesis eq. 3.11)."""
 
+    #: ``midpoint_states`` accepts ``extra`` (fits the diffusive fields in the same pass).
+    fits_extra = True
+
     def midpoint_states(self, F, geom, degree: int, extra=None):
         return fitted_midpoint_states(F, geom, degree, relative=True, extra=extra)
 
@@ -100,6 +103,9 @@ class TaylorReconstruction:
 @dataclasses.dataclass(frozen=True)
 class DirectMLSReconstruction:
     """U^-_ij = p((x_ij - x_i)/h_i)^T C_i U_S, the MLS fit at the midpoint (thesis eq. 4.39)."""
+
+    #: ``midpoint_states`` accepts ``extra`` (fits the diffusive fields in the same pass).
+    fits_extra = True
 
     def midpoint_states(self, F, geom, degree: int, extra=None):
         return fitted_midpoint_states(F, geom, degree, relative=False, extra=extra)

@@ -46,7 +46,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import inspect
 
 import jax
 import jax.numpy as jnp
@@ -179,9 +178,9 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme, bo
     degree = scheme.reconstruction_degree
     Fc, wc, ppd = _cols(F), _cols(w), particles.ppd
     recon = scheme.component("reconstruction") if degree > 0 else None
-    # one fit serves the states and the diffusive flux (a user reconstruction without ``extra``:
-    # the separate pass)
-    fused = scheme.diffusive and degree > 0 and "extra" in inspect.signature(recon.midpoint_states).parameters
+    # one fit serves the states and the diffusive flux (a reconstruction that does not declare
+    # ``fits_extra = True``: the separate pass)
+    fused = scheme.diffusive and degree > 0 and getattr(recon, "fits_extra", False)
     if degree > 0:
         if fused:   # i-side states [N, K, nv] + the diffusive fields' midpoint values and gradients
             own, fitc = recon.midpoint_states(F, geom, degree, extra=diffusive_fields(prim, scheme))

@@ -442,3 +442,32 @@ def test_diffusive_terms_in_the_pair_sweep_equal_the_separate_pass(change):
     close(new[2], old[2], scale=float(jnp.abs(old[2]).max() + jnp.abs(old[3]).max()))
     np.testing.assert_array_equal(np.asarray(new[0]), np.asarray(old[0]))
     np.testing.assert_array_equal(np.asarray(new[1]), np.asarray(old[1]))
+
+
+def test_a_reconstruction_without_fits_extra_takes_the_separate_diffusive_pass():
+    """A user reconstruction that does not declare ``fits_extra`` (docs/extending.md) is called
+    without ``extra``; its right-hand side equals the fused one of the built-in reconstruction it
+    wraps, to round-off (the separate pass of :func:`mlsph_jax.viscous.viscous_terms`)."""
+    from mlsph_jax.reconstruction import RECONSTRUCTIONS
+
+    taylor = RECONSTRUCTIONS.get("taylor")
+    calls = []
+
+    class Plain:
+        def midpoint_states(self, F, geom, degree):
+            calls.append(degree)
+            return taylor.midpoint_states(F, geom, degree)
+
+    RECONSTRUCTIONS.register("test_plain", Plain())
+    try:
+        scheme = dataclasses.replace(MLS2, viscous=True, heat_conduction=True)
+        particles, params, nl = setup(scheme, eos=scheme.eos)
+        params = params.updated({"physics.mu": 0.05, "physics.kappa": 0.07})
+        geom = jax.jit(lambda p, nl: geometry(p.x, p.vol, nl, scheme, DOMAIN))(particles, nl)
+        plain = dataclasses.replace(scheme, reconstruction="test_plain")
+        new = jax.jit(lambda p, prm, g: rhs(p, prm, g, plain))(particles, params, geom)
+        fused = jax.jit(lambda p, prm, g: rhs(p, prm, g, scheme))(particles, params, geom)
+    finally:
+        RECONSTRUCTIONS.unregister("test_plain")
+    assert calls, "the plain reconstruction was not used"
+    close(new[2], fused[2], scale=float(jnp.abs(fused[2]).max()))
