@@ -1,7 +1,7 @@
 """Throughput of the semi-discrete right-hand side (:mod:`mlsph_jax.rhs`).
 
-Layout: jittered Cartesian lattice (jitter +-0.1 dx) in the periodic unit square, uniform
-volumes dx^2, ideal gas (gamma = 1.4) with a smooth non-uniform state (density, velocity and
+Layout: jittered Cartesian lattice (jitter +-0.1 dx) in the periodic unit square (``--dim 3``:
+cube), uniform volumes dx^d, ideal gas (gamma = 1.4) with a smooth non-uniform state (density, velocity and
 pressure waves).  Schemes (Eulerian frame by default):
 
 * ``mlsph_ale`` degree 2 and 3 (full MLS derivative, reconstruction degree = degree, beta 1.5);
@@ -57,21 +57,24 @@ SCHEMES = {
 }
 
 
-def layout(n_target: int, rng: np.random.Generator, jitter: float = 0.1):
-    """Jittered Cartesian lattice of about ``n_target`` particles in the periodic unit square."""
-    m = max(4, round(n_target**0.5))
+def layout(n_target: int, rng: np.random.Generator, jitter: float = 0.1, dim: int = 2):
+    """Jittered Cartesian lattice of about ``n_target`` particles in the periodic unit square/cube."""
+    m = max(4, round(n_target ** (1.0 / dim)))
     dx = 1.0 / m
     ax = (np.arange(m) + 0.5) * dx
-    x = np.stack(np.meshgrid(ax, ax, indexing="ij"), axis=-1).reshape(-1, 2)
+    x = np.stack(np.meshgrid(*([ax] * dim), indexing="ij"), axis=-1).reshape(-1, dim)
     x = np.mod(x + rng.uniform(-jitter, jitter, x.shape) * dx, 1.0)
     return x, dx
 
 
 def smooth_state(x, params):
-    """Smooth non-uniform ideal-gas state: conservative U[N, 4]."""
+    """Smooth non-uniform ideal-gas state: conservative U[N, d + 2]."""
     k = 2.0 * np.pi
     rho = 1.0 + 0.2 * np.sin(k * x[:, 0]) * np.cos(k * x[:, 1])
-    vel = np.stack([0.3 * np.sin(k * x[:, 1]), 0.2 * np.cos(k * x[:, 0])], axis=-1)
+    comps = [0.3 * np.sin(k * x[:, 1]), 0.2 * np.cos(k * x[:, 0])]
+    if x.shape[1] == 3:
+        comps.append(0.1 * np.sin(k * (x[:, 0] + x[:, 2])))
+    vel = np.stack(comps, axis=-1)
     p = 1.0 + 0.1 * np.cos(k * (x[:, 0] + x[:, 1]))
     return np.asarray(
         to_conservative(
@@ -91,19 +94,19 @@ def _time(fn, args, repeat: int):
 
 
 def run(name: str, n_target: int, repeat: int, frame: str, seed: int, flux: str = "rusanov",
-        low_mach: str = "none", reference_mach: float = 0.1, keep: list | None = None) -> dict:
+        low_mach: str = "none", reference_mach: float = 0.1, keep: list | None = None, dim: int = 2) -> dict:
     from mlsph_jax.flux import FLUXES
 
     mref = reference_mach if getattr(FLUXES.get(flux, "--flux"), "uses_reference_mach", False) else 0.0
     scheme = Scheme(**SCHEMES[name], frame=frame, flux=flux, low_mach_reconstruction=low_mach, reference_mach=mref)
     rng = np.random.default_rng(seed)
-    x, dx = layout(n_target, rng)
+    x, dx = layout(n_target, rng, dim=dim)
     n = x.shape[0]
     params = Params({"eos.gamma": 1.4})
-    vol = np.full(n, dx * dx)
+    vol = np.full(n, dx**dim)
     particles = make_particles(x, vol, smooth_state(x, params))
-    domain = Domain((0.0, 0.0), (1.0, 1.0), (True, True))
-    h = scheme.beta * vol**0.5
+    domain = Domain((0.0,) * dim, (1.0,) * dim, (True,) * dim)
+    h = scheme.beta * vol ** (1.0 / dim)
     _, nl = neighbors.allocate(x, h, domain, support=scheme.support)
     assert not bool(nl.overflow)
 
@@ -126,6 +129,7 @@ def run(name: str, n_target: int, repeat: int, frame: str, seed: int, flux: str 
         reconstruction_degree=scheme.reconstruction_degree,
         beta=scheme.beta,
         frame=frame,
+        dim=dim,
         n=n,
         capacity=int(nl.idx.shape[1]),
         mean_neighbors=float(np.mean(nl.count)),
@@ -181,6 +185,7 @@ def main(argv=None) -> None:
                         "(minimum; robust cost ratios on a loaded machine); 0 = off")
     p.add_argument("--reference-mach", type=float, default=0.1,
                    help="scheme.reference_mach for the fluxes that need one (hllc_lm)")
+    p.add_argument("--dim", type=int, default=2, choices=[2, 3], help="2D square or 3D cube (N = n^dim)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
         "--out",
@@ -201,7 +206,7 @@ def main(argv=None) -> None:
         for n in args.sizes:
             first, keep, group = None, ([] if args.interleave else None), []
             for flux, lm in variants:
-                r = run(name, n, args.repeat, args.frame, args.seed, flux, lm, args.reference_mach, keep)
+                r = run(name, n, args.repeat, args.frame, args.seed, flux, lm, args.reference_mach, keep, args.dim)
                 group.append(r)
                 first = first or r
                 r["rhs_cost_ratio"] = r["rhs_s"] / first["rhs_s"]
@@ -239,6 +244,7 @@ def main(argv=None) -> None:
         repeat=args.repeat,
         frame=args.frame,
         dtype=str(jnp.zeros(()).dtype),
+        dim=args.dim,
         interleave=args.interleave,
     )
     args.out.parent.mkdir(parents=True, exist_ok=True)
