@@ -43,3 +43,85 @@ def test_polar_layout_thesis_count():
 def test_polar_layout_bad_input(args, key):
     with pytest.raises(InputError, match=key):
         polar_ring_edges(*args)
+
+
+# --- the case: far field and body -------------------------------------------------------------
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+
+from mlsph_jax import config as config_mod  # noqa: E402
+from mlsph_jax import neighbors  # noqa: E402
+from mlsph_jax.cases import build_problem  # noqa: E402
+from mlsph_jax.cases.cylinder import free_stream  # noqa: E402
+from mlsph_jax.eos import get_eos, to_conservative  # noqa: E402
+from mlsph_jax.rhs import geometry, rhs  # noqa: E402
+from mlsph_jax.state import Kind  # noqa: E402
+from mlsph_jax.testing import CONFIG_DIR  # noqa: E402
+
+SMALL = ("case.n_theta=16", "case.r_far=3.0", "output.plots=false", "output.progress=false")
+
+
+def _problem(*overrides):
+    cfg = config_mod.load(CONFIG_DIR / "cylinder.toml", [*SMALL, *overrides])
+    return cfg, build_problem(cfg)
+
+
+def _with_velocity(pb, cfg, speed):
+    """The problem's particles with the free-stream state moving at ``speed`` along x."""
+    p = pb.particles
+    rho, vel, pr = free_stream(cfg, np.asarray(p.x), pb.params)
+    U = to_conservative(jnp.asarray(rho), jnp.asarray(vel) * speed, jnp.asarray(pr), get_eos(pb.scheme.eos),
+                        pb.params)
+    return p.replace(q=p.vol[:, None] * U)
+
+
+def _rhs(pb, p, boundary):
+    h = pb.scheme.beta * p.vol ** 0.5
+    _, nl = neighbors.allocate(p.x, h, pb.domain)
+    geom = geometry(p.x, p.vol, nl, pb.scheme, pb.domain)
+    return jax.jit(lambda p: rhs(p, pb.params, geom, pb.scheme, boundary))(p)
+
+
+def test_uniform_stream_without_body_stays_uniform_and_far_field_is_frozen():
+    """The cylinder's layout with its frozen far field and no body: a uniform free stream has a
+    zero right-hand side to round-off (it stays uniform), and frozen particles get no update."""
+    cfg, pb = _problem()
+    p = pb.particles
+    _, _, dq = _rhs(pb, p, None)
+    scale = float(jnp.max(jnp.abs(p.q)))
+    assert float(jnp.max(jnp.abs(dq))) <= 1e-12 * scale
+    frozen = np.asarray(p.kind) == int(Kind.FROZEN)
+    assert frozen.sum() == 16 * 4 and np.all(np.asarray(dq)[frozen] == 0.0)
+
+
+def test_body_terms_vanish_for_a_uniform_state_at_rest():
+    """With the body: fluid at rest with uniform pressure has zero boundary terms (F_b . n = p n =
+    F_i . n at every wall point) and zero right-hand side to round-off; the same fluid moving
+    through the no-slip body does not (the check can fail)."""
+    cfg, pb = _problem()
+    p = _with_velocity(pb, cfg, 0.0)
+    _, _, dq = _rhs(pb, p, pb.boundary)
+    scale = float(jnp.max(jnp.abs(p.q)))
+    assert float(jnp.max(jnp.abs(dq))) <= 1e-12 * scale
+    _, _, dq_moving = _rhs(pb, pb.particles, pb.boundary)
+    assert float(jnp.max(jnp.abs(dq_moving))) > 1e-3 * scale
+
+
+def test_force_on_body_at_rest_is_the_buoyancy():
+    """Archimedes: fluid at rest in the isothermal atmosphere p = p_inf exp(-a y), a = rho_inf g /
+    p_inf, under the body force (0, -g).  The force of the fluid on the body, sum_b p_b n_b dGamma_b,
+    equals -int_body grad p dA = 2 pi R p_inf I_1(a R) upward (no viscous part at rest); the wall
+    pressure is the linear MLS interpolant, so the error is O((a h)^2) relative."""
+    from scipy.special import i1
+
+    g = 1.0
+    cfg, pb = _problem(f"physics.body_force=[0.0, {-g}]")
+    p = _with_velocity(pb, cfg, 0.0)
+    total, pressure = pb.boundary.forces(p, pb.params, pb.scheme)
+    p_inf = float(free_stream(cfg, np.zeros((1, 2)), pb.params)[2][0])
+    a, R = 1.0 * g / p_inf, cfg["case"]["radius"]
+    exact = 2.0 * math.pi * R * p_inf * i1(a * R)
+    f = np.asarray(total[0])
+    assert abs(f[1] - exact) <= 1e-3 * exact, (f, exact)
+    assert abs(f[0]) <= 1e-12 * exact and np.array_equal(np.asarray(total), np.asarray(pressure))
