@@ -255,7 +255,7 @@ def _check_far_field_apart(walls, p: Particles) -> None:
 
 CYLINDER = register_case(
     "cylinder", CYLINDER_KEYS, build, check=check_cylinder, dim=2,
-    defaults_override={"eos.kind": "ideal_gas", "eos.gamma": 1.4, "time.t_end": 60.0, "output.snapshots": 30},
+    defaults_override={"eos.kind": "ideal_gas", "eos.gamma": 1.4, "time.t_end": 30.0, "output.snapshots": 15},
     doc="Flow past a circular cylinder (thesis §4.5.2): a cylinder of radius `radius` in a free stream "
         "at Reynolds number `re` and Mach number `mach`, body-fitted polar layout, no-slip body by the "
         "boundary integral of thesis eq. 4.24, frozen free-stream far field beyond `r_far`; drag, lift "
