@@ -176,12 +176,12 @@ def test_coarse_re40_drag_in_band():
 
 @pytest.mark.slow
 def test_builtin_config_meets_the_re40_targets():
-    """configs/cylinder.toml as shipped (n_theta = 48, far field at 40 D, steady stop) against
-    issue 17's Re = 40 targets: C_D within 3 % of 1.56, C_p front within 4 % of 1.18, base within
-    8 % of -0.51, L_w / D within 10 % of 2.3 (about 15 min on 2 cores)."""
+    """configs/cylinder.toml as shipped (n_theta = 48, far field at 40 D, t = 30) against issue
+    17's Re = 40 targets: C_D within 3 % of 1.56, C_p front within 4 % of 1.18, base within 8 % of
+    -0.51, L_w / D within 10 % of 2.3 (about 16 min on 2 shared cores).  Measured at t = 28
+    (docs/validation.md): C_D 1.578 and C_p front 1.136 meet theirs, C_p base -0.562 and L_w / D
+    1.55 do not (the wake is under-resolved at n_theta = 48), so this test is expected to fail."""
     cfg = config_mod.load(CONFIG_DIR / "cylinder.toml", ["output.plots=false", "output.progress=false"])
-    s = run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True).summary
-    assert s["steady_state"]["converged"], s["steady_state"]
-    m = s["metrics"]
+    m = run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True).summary["metrics"]
     for key, (value, tol) in RE40_TARGETS.items():
         assert abs(m[key] - value) <= tol * abs(value), (key, m[key], value, tol)
