@@ -536,6 +536,7 @@ def test_reference_markdown_mentions_every_key():
     assert "barotropic tait EOS" in md  # the riemann_1d cross-checks are documented
     # allowed names of component keys are the registered ones
     assert '| one of "ale_shift", "eulerian", "lagrangian" |' in md
-    assert 'one of "blast_2d", "couette", "lid_driven_cavity", "poiseuille", "riemann_1d", "taylor_green_2d"' in md
+    assert ('one of "blast_2d", "couette", "cylinder", "lid_driven_cavity", "poiseuille", "riemann_1d", '
+            '"taylor_green_2d"') in md
     for key in C.SCHEMA_COMMON["scheme"].values():
         assert key.doc, "every key has a doc line"

@@ -1,4 +1,5 @@
-"""Particle layouts filling a disc, for the 2-D blast explosion (SPEC §12.1 V3).
+"""Particle layouts: a disc for the 2-D blast explosion (SPEC §12.1 V3) and a body-fitted polar
+layout around a circular body (SPEC §12.2 V9, :func:`polar_layout`).
 
 Thesis §3.7.2 ("2D Blast Explosion", Fig. 3.5) runs the cylindrical Tait shock tube on a disc of
 radius ``R = 0.1`` m with three initial particle layouts, to show that the scheme keeps the radial
@@ -30,14 +31,15 @@ So ``N ~= pi R^2 / dx^2`` for all layouts: the thesis counts correspond to ``dx 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from scipy.spatial import Delaunay
 
 from ..errors import invalid
 
-__all__ = ["DELAUNAY_SPACING", "LAYOUTS", "delaunay_barycentres", "disc_layout",
-           "perturbed_barycentres", "rings"]
+__all__ = ["DELAUNAY_SPACING", "LAYOUTS", "PolarLayout", "delaunay_barycentres", "disc_layout",
+           "perturbed_barycentres", "polar_layout", "polar_ring_edges", "rings"]
 
 #: Vertex spacing ``h / dx`` of the Delaunay layouts.  An equilateral triangle of side ``h`` has
 #: area ``sqrt(3)/4 h^2``; ``h = (4/sqrt(3))^(1/2) dx`` makes it ``dx^2`` (one particle per
@@ -202,3 +204,68 @@ def disc_layout(name: str, radius: float, dx: float, seed: int = 0,
     if name == "delaunay":
         return delaunay_barycentres(radius, dx, seed=seed)
     return perturbed_barycentres(radius, dx, amplitude=amplitude, seed=seed)
+
+
+# --------------------------------------------------------------------------------------------
+# body-fitted polar layout (flow past a cylinder, SPEC §12.2 V9)
+# --------------------------------------------------------------------------------------------
+
+def polar_ring_edges(radius: float, n_theta: int, r_far: float, *, names=("radius", "n_theta", "r_far")):
+    """Ring edges ``r_k = radius q^k``, k = 0..n_rings, with ``r_{n_rings} = r_far`` exactly.
+
+    Geometric radial growth with cells as long as they are wide: a cell of the ring at r spans
+    dr = r dtheta radially for dtheta = 2 pi / n_theta, so ``n_rings = ceil(ln(r_far / radius) /
+    ln(1 + dtheta))`` and ``q = (r_far / radius)^(1 / n_rings)`` (slightly below 1 + dtheta).
+    ``names``: the config keys named by the errors.  Returns ``(edges[n_rings + 1], q)``.
+    """
+    kr, kn, kf = names
+    if not (isinstance(radius, int | float) and math.isfinite(radius) and radius > 0):
+        raise invalid(kr, radius, "a finite radius > 0")
+    if isinstance(n_theta, bool) or not isinstance(n_theta, int | np.integer) or n_theta < 8:
+        raise invalid(kn, n_theta, "an integer >= 8 (points around the body)")
+    if not (isinstance(r_far, int | float) and math.isfinite(r_far) and r_far > radius):
+        raise invalid(kf, r_far, f"a finite outer radius > {kr}={radius!r}")
+    dtheta = 2.0 * math.pi / int(n_theta)
+    n_rings = max(1, math.ceil(math.log(r_far / radius) / math.log1p(dtheta) - 1e-9))
+    q = (r_far / radius) ** (1.0 / n_rings)
+    return radius * q ** np.arange(n_rings + 1), q
+
+
+class PolarLayout(NamedTuple):
+    """:func:`polar_layout`'s result: ``x[N, 2]``, ``vol[N]``, ``ring[N]`` (particle i's ring, 0
+    next to the body) and the ring ``edges[R + 1]``."""
+
+    x: np.ndarray
+    vol: np.ndarray
+    ring: np.ndarray
+    edges: np.ndarray
+
+
+def polar_layout(radius: float, n_theta: int, r_far: float, n_extra: int = 0, centre=(0.0, 0.0),
+                 *, names=("radius", "n_theta", "r_far")) -> PolarLayout:
+    """Body-fitted polar (O-grid) layout of the annulus ``radius < r < r_far`` around ``centre``.
+
+    :func:`polar_ring_edges` gives the rings; ``n_extra`` more rings continue the same geometric
+    sequence beyond ``r_far`` (the far-field rings).  Ring k holds ``n_theta`` particles at the
+    centres of its annular sectors, ``r = (r_k + r_{k+1}) / 2``, ``theta_j = (j + 1/2) dtheta``
+    (the angles of the :class:`~mlsph_jax.geometry.Circle` quadrature points, so every wall point
+    has a particle straight above it), and each particle's volume is its sector's area
+    ``(r_{k+1}^2 - r_k^2) dtheta / 2``: the volumes of the first ``n_rings`` rings sum to
+    ``pi (r_far^2 - radius^2)`` to round-off.  Thesis setup (V9): 120 points around the body,
+    10,800 particles = 120 x 90 rings.  Returns a :class:`PolarLayout`.
+    """
+    edges, q = polar_ring_edges(radius, n_theta, r_far, names=names)
+    if isinstance(n_extra, bool) or not isinstance(n_extra, int | np.integer) or n_extra < 0:
+        raise invalid("n_extra", n_extra, "an integer >= 0 (far-field rings)")
+    n_theta = int(n_theta)
+    edges = np.concatenate([edges, edges[-1] * q ** np.arange(1, int(n_extra) + 1)])
+    n_r = len(edges) - 1
+    dtheta = 2.0 * math.pi / n_theta
+    theta = (np.arange(n_theta) + 0.5) * dtheta
+    rc = 0.5 * (edges[1:] + edges[:-1])
+    area = 0.5 * (edges[1:] ** 2 - edges[:-1] ** 2) * dtheta
+    ring = np.repeat(np.arange(n_r), n_theta)
+    th = np.tile(theta, n_r)
+    c = np.asarray(centre, float)
+    x = np.stack([c[0] + rc[ring] * np.cos(th), c[1] + rc[ring] * np.sin(th)], axis=1)
+    return PolarLayout(x, area[ring], ring, edges)

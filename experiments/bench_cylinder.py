@@ -1,0 +1,93 @@
+"""Cost of the flow past a cylinder (``configs/cylinder.toml``, issue 17): step throughput,
+compile time and the share of the boundary-integral body in the right-hand side.
+
+For each ``--set``-style layout (``--n-theta`` values; the config's other settings):
+
+* ``rhs``: the interior right-hand side alone (no body), ``rhs+walls``: with the body's boundary
+  term, ``walls``: the body's ``wall_terms`` alone, and ``band``: the in-run crossing/overflow
+  check of every committed step; each compiled ahead of time (compile time reported) and timed
+  as the best of ``--repeat`` runs interleaved (A, B, C, D, A, ...) so machine load affects all
+  alike;
+* ``run``: ``--steps`` SSP-RK3 steps of the full simulation at a fixed step near the CFL step (no output):
+  particle-steps per second after compilation, and the compile time.
+
+The load average is recorded beside every timing ("contended" above 2.5).  Prints a line per
+layout and writes ``experiments/output/bench_cylinder.json``.  Not a test.
+
+Usage::
+
+    python experiments/bench_cylinder.py --n-theta 32 48 --steps 200 --repeat 5
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import sys
+
+from mlsph_jax import config as config_mod
+from mlsph_jax import neighbors
+from mlsph_jax.cases import build_problem
+from mlsph_jax.rhs import geometry
+from mlsph_jax.simulation import run_problem
+from mlsph_jax.testing import CONFIG_DIR, time_interleaved
+
+sys.path.insert(0, str(pathlib.Path(__file__).parent))
+from bench_wall_integral import variants as wall_variants  # noqa: E402  (the same three timed functions)
+
+
+def load(n_theta: int, extra=()):
+    return config_mod.load(CONFIG_DIR / "cylinder.toml", [f"case.n_theta={n_theta}", "output.plots=false",
+                                                          "output.progress=false", *extra])
+
+
+def variants(walls, scheme) -> dict:
+    """``rhs``, ``rhs+walls``, ``walls`` of experiments/bench_wall_integral.py and the ``band`` check."""
+    return {**wall_variants(walls, scheme), "band": lambda p, params, geom: walls.band_status(p)}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--n-theta", type=int, nargs="+", default=[32, 48])
+    ap.add_argument("--steps", type=int, default=200)
+    ap.add_argument("--repeat", type=int, default=5)
+    args = ap.parse_args(argv)
+    rows = []
+    for nt in args.n_theta:
+        cfg = load(nt)
+        pb = build_problem(cfg)
+        p, params, scheme, walls = pb.particles, pb.params, pb.scheme, pb.boundary
+        h = scheme.beta * p.vol ** 0.5
+        _, nl = neighbors.allocate(p.x, h, pb.domain)
+        geom = geometry(p.x, p.vol, nl, scheme, pb.domain)
+        best, compile_s = time_interleaved(variants(walls, scheme), (p, params, geom), args.repeat)
+        load_rhs = os.getloadavg()[0]
+        dt = 1e-3 * 48 / nt     # about the CFL step at cfl 0.3 (fixed: the step count is exact)
+        run_cfg = load(nt, [f"time.dt={dt!r}", f"time.t_end={args.steps * dt!r}", "case.steady_tol=0",
+                            "output.snapshots=1"])
+        res = run_problem(build_problem(run_cfg), run_cfg, out_dir=None, quiet=True)
+        s = res.summary
+        run_s = s["wall_time_s"] - s["compile_time_s"]
+        load_run = os.getloadavg()[0]
+        row = {"n_theta": nt, "n_particles": p.n, "n_wall_points": nt, "capacity": walls.capacity,
+               "best_s": best, "compile_s": compile_s, "wall_cost_ratio": best["walls"] / best["rhs"],
+               "band_cost_ratio": best["band"] / best["rhs"], "run_steps": int(s["n_steps"]),
+               "run_s": run_s, "run_compile_s": s["compile_time_s"], "dt_last": s["dt_last"],
+               "particle_steps_per_s": p.n * int(s["n_steps"]) / run_s, "load_average_rhs": load_rhs,
+               "load_average_run": load_run}
+        rows.append(row)
+        tag = lambda v: f"load {v:.1f}" + (" (contended)" if v > 2.5 else "")  # noqa: E731
+        print(f"n_theta={nt} N={p.n} K_b={walls.capacity}: rhs {best['rhs'] * 1e3:.2f} ms, rhs+walls "
+              f"{best['rhs+walls'] * 1e3:.2f} ms, walls {best['walls'] * 1e3:.2f} ms ({row['wall_cost_ratio']:.2f} "
+              f"of rhs), band check {best['band'] * 1e3:.2f} ms; {tag(load_rhs)}\n"
+              f"  run: {row['run_steps']} steps in {run_s:.1f} s = {row['particle_steps_per_s']:.3g} particle-steps/s "
+              f"(dt {s['dt_last']:.3g}), compile {s['compile_time_s']:.1f} s; {tag(load_run)}", flush=True)
+    out = pathlib.Path(__file__).parent / "output"
+    out.mkdir(exist_ok=True)
+    (out / "bench_cylinder.json").write_text(json.dumps({"argv": sys.argv[1:], "rows": rows}, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,366 @@
+"""``cylinder``: flow past a circular cylinder (thesis §4.5.2, Figs. 4.7-4.9, Table 4.1; SPEC §12.2
+V9, §5.8, §8.4-8.5; issue 17).
+
+Geometry and particles.  A cylinder of ``radius`` R (D = 2R) at the origin in a stream along +x.
+The fluid fills the annulus R < r < ``r_far`` on the body-fitted polar layout of
+:func:`mlsph_jax.cases.layouts.polar_layout`: ``n_theta`` particles per ring at the angles of the
+body's quadrature points, rings growing geometrically with square cells (ring ratio q ~ 1 + 2
+pi / n_theta), volumes the annular-sector areas.  The thesis' setup (120 points on the body,
+10,800 particles = 120 x 90 rings) is ``--set case.n_theta=120 case.r_far=40`` (86 fluid rings
+to r = 80 D and 4 far-field rings).
+
+Body.  No-slip adiabatic wall by the boundary integral of thesis eq. 4.24
+(:mod:`mlsph_jax.wall_integral`, ``boundary_integral``; SPEC §5.8): a
+:class:`~mlsph_jax.geometry.Circle` named ``body`` with ``n_theta`` quadrature points, no ghosts.
+The body's centre and radius are the parameters ``geometry.body.centre`` / ``geometry.body.radius``.
+
+Far field (SPEC §5.8 [REC], §8.5).  Beyond ``r_far`` the geometric rings continue as FROZEN
+particles (:class:`~mlsph_jax.state.Kind`) holding the free-stream state: the integrator never
+updates a frozen particle (its state is the free stream bit for bit at every stage, which is the
+"reset to the free stream each stage" of SPEC §5.8), while it acts as a neighbour of the fluid.
+Their number is the smallest that covers the support radius kappa beta sqrt(V) of the outermost
+fluid ring, plus one ring (as for the blast's far field), so every fluid stencil is complete.
+
+Fluid.  Ideal gas (SPEC V9 [REC]: gamma = 1.4), rho_inf = U_inf = 1, free-stream Mach number
+``mach`` (c_inf = U_inf / M, p_inf = rho_inf c_inf^2 / gamma), mu = rho_inf U_inf D / ``re``
+(physics.mu is derived as in the cavity), no heat conduction (physics.kappa = 0: at M = 0.1 the
+temperature varies by O(M^2); the wall is adiabatic either way).  Eulerian frame (thesis).  The
+run starts impulsively: every particle at the free stream.  With a body force
+``physics.body_force`` = f the initial and far-field states are the isothermal hydrostatic
+atmosphere p = p_inf exp(rho_inf f.x / p_inf), rho = rho_inf p / p_inf (grad p = rho f).
+
+Steady state.  The run stops once the velocity field changes by less than ``steady_tol`` per unit
+time relative to its maximum between two output times (the cavity's residual,
+:class:`~mlsph_jax.simulation.Problem` ``steady_tol``), or at ``time.t_end``.
+
+Diagnostics (every output time, ``timeseries.csv``) and metrics (final state), forces from the
+body's quadrature points (:meth:`~mlsph_jax.wall_integral.BoundaryIntegralWalls.coefficients`):
+
+* ``cd``, ``cl``: drag and lift coefficients F / (1/2 rho_inf U_inf^2 D); ``cd_pressure``,
+  ``cl_pressure`` their pressure parts and ``cd_viscous``, ``cl_viscous`` the viscous parts;
+* ``cp_front``, ``cp_base``: C_p = (p_b - p_inf) / (1/2 rho_inf U_inf^2) at theta = pi (front
+  stagnation point) and theta = 0 (base), p_b the wall pressure of the boundary integral,
+  interpolated in angle from the four nearest quadrature points (cubic Lagrange);
+* ``recirculation_length`` (metrics only): L_w / D, the distance from the base to where u_x on
+  the wake axis y = 0 turns positive again behind the first ring that flows back; u_x on the
+  axis is the mean of the two particle rays at theta = +-dtheta/2, linear in r between rings
+  (0 when nothing flows back; the first ring next to the wall may be slightly positive, since
+  no-slip is imposed weakly through the boundary term).
+
+Plots: ``cp.png`` (C_p(theta) with thesis Table 4.1's points) and ``velocity_field.png``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+
+from ..boundaries import BOUNDARIES
+from ..config import effective_beta
+from ..eos import get_eos, to_conservative, to_primitive
+from ..errors import ConfigError, InputError
+from ..geometry import Circle
+from ..kernels import get_kernel
+from ..plotting import subplots
+from ..reference import cylinder as ref
+from ..schema import Key, join_problems, show
+from ..simulation import Problem
+from ..state import Domain, Kind, Params, Particles, make_particles
+from .base import register_case
+from .common import params_from_config, scheme_from_config
+from .layouts import polar_layout, polar_ring_edges
+
+#: Free-stream density and speed (the scales of the coefficients).
+RHO_INF = 1.0
+U_INF = 1.0
+#: Name of the body's curve (``geometry.body.*`` parameters).
+BODY = "body"
+_NAMES = ("case.radius", "case.n_theta", "case.r_far")
+
+
+def cylinder_viscosity(cfg: Mapping) -> float:
+    """mu = rho_inf U_inf D / re of a resolved ``cylinder`` config."""
+    return RHO_INF * U_INF * 2.0 * cfg["case"]["radius"] / cfg["case"]["re"]
+
+
+def _support_radius(cfg: Mapping, dx: float) -> float:
+    return get_kernel(cfg["scheme"]["kernel"]).support * effective_beta(cfg["scheme"]) * dx
+
+
+def n_far_field_rings(cfg: Mapping) -> int:
+    """Frozen rings beyond ``r_far``: the fewest whose widths (the geometric sequence continued)
+    cover the support radius of the outermost fluid ring's particles, plus one."""
+    c = cfg["case"]
+    edges, q = polar_ring_edges(c["radius"], c["n_theta"], c["r_far"], names=_NAMES)
+    dtheta = 2.0 * math.pi / c["n_theta"]
+    last = math.sqrt(0.5 * (edges[-1] ** 2 - edges[-2] ** 2) * dtheta)
+    reach = _support_radius(cfg, last)
+    width, k = 0.0, 0
+    while width < reach:
+        k += 1
+        width += (edges[-1] - edges[-2]) * q ** k
+    return k + 1
+
+
+def check_cylinder(cfg: dict) -> None:
+    """`eos.kind` must be ideal_gas (SPEC V9) and `scheme.method` mlsph_ale (the boundary term of
+    thesis eq. 4.24 is derived for MLS shape functions), `scheme.frame` eulerian (thesis; the
+    body-fitted layout is not kept by moving particles). The viscosity follows from `re`:
+    physics.mu must be 0 (derived) or equal rho_inf U_inf 2 `radius` / `re`. The far field must
+    stay out of the body's wall stencils: `r_far` must exceed `radius` plus the wall points'
+    support radius kappa beta sqrt(V_0) (V_0 the volume of a first-ring particle); otherwise the
+    body is too big for the layout and overlaps the far-field rings (the set-up also checks
+    every wall stencil for frozen particles). A `physics.body_force` f must keep the hydrostatic
+    pressure ratio across the domain moderate: rho_inf |f| 2 `r_far` / p_inf <= 50."""
+    c, phys = cfg["case"], cfg["physics"]
+    problems = []
+    if cfg["eos"]["kind"] != "ideal_gas":
+        problems.append(f"invalid eos.kind={show(cfg['eos']['kind'])}: case cylinder is a compressible "
+                        "ideal-gas flow at free-stream Mach number case.mach (SPEC V9); allowed: \"ideal_gas\"")
+    if cfg["scheme"]["method"] != "mlsph_ale":
+        problems.append(f"invalid scheme.method={show(cfg['scheme']['method'])}: the body is a boundary-integral "
+                        "wall (thesis eq. 4.24), derived for MLS shape functions; allowed: \"mlsph_ale\"")
+    if cfg["scheme"]["frame"] != "eulerian":
+        problems.append(f"invalid scheme.frame={show(cfg['scheme']['frame'])}: the body-fitted layout and "
+                        "the frozen far field need fixed particles; allowed: \"eulerian\"")
+    mu = cylinder_viscosity(cfg)
+    if phys["mu"] != 0.0 and abs(phys["mu"] - mu) > 1e-9 * mu:
+        problems.append(f"invalid physics.mu={show(phys['mu'])}: case cylinder derives the viscosity from "
+                        f"case.re={show(c['re'])} (mu = rho_inf U_inf 2 case.radius / case.re = {mu:.10g}); "
+                        f"allowed: 0 (derived) or {mu:.10g} — set case.re instead")
+    try:
+        edges, _ = polar_ring_edges(c["radius"], c["n_theta"], c["r_far"], names=_NAMES)
+    except InputError as e:
+        problems.append(str(e))
+    else:
+        dtheta = 2.0 * math.pi / c["n_theta"]
+        # the support radius kappa beta sqrt(V_0) of the body's wall points (V_0: the first ring)
+        need = c["radius"] + _support_radius(cfg, math.sqrt(0.5 * (edges[1] ** 2 - edges[0] ** 2) * dtheta))
+        if c["r_far"] <= need:
+            problems.append(f"invalid case.r_far={show(c['r_far'])} with case.radius={show(c['radius'])} and "
+                            f"case.n_theta={c['n_theta']}: the far-field rings start inside the support of the "
+                            f"body's wall points (out to r = {need:.4g}), the body is too big for the layout; "
+                            f"allowed: case.r_far > {need:.4g} (or a smaller case.radius)")
+    bf = phys["body_force"]
+    if bf and any(f != 0.0 for f in bf):
+        p_inf = RHO_INF * (U_INF / c["mach"]) ** 2 / cfg["eos"]["gamma"]
+        r_out = 2.0 * c["r_far"]
+        drop = RHO_INF * math.hypot(*bf) * r_out / p_inf
+        if drop > 50.0:
+            problems.append(f"invalid physics.body_force={show(bf)} with case.mach={show(c['mach'])}: the "
+                            f"hydrostatic pressure would vary by a factor exp({drop:.3g}) across the domain; "
+                            "allowed: rho_inf |f| 2 r_far / p_inf <= 50")
+    if problems:
+        raise ConfigError(join_problems(problems))
+
+
+CYLINDER_KEYS: dict[str, Key] = {
+    "radius": Key(float, 0.5, minimum=0.0, exclusive_minimum=True, unit="m",
+                  doc="cylinder radius R (D = 2R; thesis: 0.5)"),
+    "re": Key(float, 40.0, minimum=0.0, exclusive_minimum=True,
+              doc="Reynolds number rho_inf U_inf D / mu (sets physics.mu; rho_inf = U_inf = 1)"),
+    "mach": Key(float, 0.1, minimum=0.0, exclusive_minimum=True, maximum=0.5,
+                doc="free-stream Mach number U_inf / c_inf (sets p_inf = rho_inf c_inf^2 / gamma; thesis: 0.1)"),
+    "n_theta": Key(int, 48, minimum=32,
+                   doc="particles per ring = quadrature points on the body (thesis: 120); the rings "
+                       "grow geometrically with square cells, ratio ~1 + 2 pi / n_theta; below 32 the "
+                       "wall rows blow up (16: NaN in the first step, 24: at t = 1.6, CFL 0.3 and 0.6)"),
+    "r_far": Key(float, 40.0, minimum=0.0, exclusive_minimum=True, unit="m",
+                 doc="outer radius of the fluid region (frozen free-stream rings beyond it); "
+                     "thesis setup: 40 with n_theta = 120 (10,800 particles)"),
+    "steady_tol": Key(float, 1e-3, minimum=0.0,
+                      doc="stop once max|u(t2) - u(t1)| / max|u| / (t2 - t1) between two output "
+                          "times is below this (1/s; 0 = always run to time.t_end)"),
+}
+
+
+def run_config(cfg: Mapping) -> dict:
+    """The resolved config with ``physics.mu`` set to rho_inf U_inf D / Re (what the run uses)."""
+    return {**cfg, "physics": {**cfg["physics"], "mu": cylinder_viscosity(cfg)}}
+
+
+def free_stream(cfg: Mapping, x: np.ndarray, params: Params):
+    """``(rho, vel, p)`` of the free stream at ``x[N, 2]`` (the isothermal hydrostatic atmosphere
+    when there is a body force; module docstring)."""
+    c = cfg["case"]
+    p_inf = RHO_INF * (U_INF / c["mach"]) ** 2 / cfg["eos"]["gamma"]
+    bf = cfg["physics"]["body_force"]
+    f = np.asarray(bf if bf else [0.0, 0.0], float)
+    p = p_inf * np.exp(RHO_INF * (x @ f) / p_inf)
+    vel = np.tile([U_INF, 0.0], (len(x), 1))
+    return RHO_INF * p / p_inf, vel, p
+
+
+def build(cfg: Mapping) -> Problem:
+    cfg = run_config(cfg)
+    c = cfg["case"]
+    scheme = scheme_from_config(cfg)
+    params = params_from_config(cfg)
+    eos = get_eos(scheme.eos)
+    R, n_theta = c["radius"], c["n_theta"]
+    n_frozen = n_far_field_rings(cfg)
+    lay = polar_layout(R, n_theta, c["r_far"], n_frozen, names=_NAMES)
+    n_fluid_rings = len(lay.edges) - 1 - n_frozen
+    kind = np.where(lay.ring < n_fluid_rings, int(Kind.FLUID), int(Kind.FROZEN))
+    rho, vel, p = free_stream(cfg, lay.x, params)
+    U = to_conservative(jnp.asarray(rho), jnp.asarray(vel), jnp.asarray(p), eos, params)
+    pf = make_particles(lay.x, lay.vol, U, kind=kind, ppd=np.full(len(lay.x), scheme.reconstruction_degree))
+    half = float(lay.edges[-1]) * 1.01
+    domain = Domain((-half, -half), (half, half), (False, False))
+    body = Circle(BODY, centre=(0.0, 0.0), radius=float(R), n_points=n_theta)
+    band = R * 2.0 * math.pi / n_theta
+    particles, walls = BOUNDARIES.get("boundary_integral").setup(pf, [], band, params, scheme.eos, scheme=scheme,
+                                                                 domain=domain, curves=(body,))
+    _check_far_field_apart(walls, particles)
+    p_inf = float(free_stream(cfg, np.zeros((1, 2)), params)[2][0])
+    q_inf = 0.5 * RHO_INF * U_INF ** 2
+
+    def coefficients(p: Particles, t: float, P) -> dict:
+        """C_D, C_L and their parts (jnp, differentiable)."""
+        co = walls.coefficients(p, P, scheme, rho_inf=RHO_INF, u_inf=(U_INF, 0.0), length=2.0 * R, curve=BODY)
+        return {**co, "cd_viscous": co["cd"] - co["cd_pressure"], "cl_viscous": co["cl"] - co["cl_pressure"]}
+
+    def diagnostics(p: Particles, t: float, P) -> dict[str, float]:
+        out = {k: float(v) for k, v in coefficients(p, t, P).items()}
+        theta, cp = wall_cp(p, P, walls, scheme, p_inf, q_inf)
+        out["cp_front"] = float(periodic_interpolate(theta, cp, math.pi))
+        out["cp_base"] = float(periodic_interpolate(theta, cp, 0.0))
+        return out
+
+    def metrics(p: Particles, t: float, P) -> dict[str, float]:
+        return {**diagnostics(p, t, P), "recirculation_length": recirculation_length(p, P, scheme, R, n_theta)}
+
+    def plot(out: Path, p: Particles, t: float, P) -> None:
+        plot_cp(Path(out) / "cp.png", *wall_cp(p, P, walls, scheme, p_inf, q_inf), title=_title(cfg, p.n, t))
+        plot_field(Path(out) / "velocity_field.png", p, P, scheme, R, title=_title(cfg, p.n, t))
+
+    return Problem("cylinder", particles, params, scheme, domain, cfg["time"]["t_end"], metrics, plot,
+                   config=cfg, description=_title(cfg, particles.n), boundary=walls, diagnostics=diagnostics,
+                   steady_tol=c["steady_tol"], differentiable_metrics=coefficients)
+
+
+def _check_far_field_apart(walls, p: Particles) -> None:
+    """No frozen (far-field) particle may be in the stencil of a wall point (the body would
+    exchange fluxes with the imposed free stream directly)."""
+    st = walls.stencils(p, walls.points({}).x)
+    frozen = np.asarray(p.kind)[np.asarray(st.idx)] == int(Kind.FROZEN)
+    if np.any(frozen & np.asarray(st.mask)):
+        raise InputError("invalid case.r_far: far-field (frozen) particles lie in the support of the body's wall "
+                         "points; allowed: a larger case.r_far or a smaller case.radius")
+
+
+CYLINDER = register_case(
+    "cylinder", CYLINDER_KEYS, build, check=check_cylinder, dim=2,
+    defaults_override={"eos.kind": "ideal_gas", "eos.gamma": 1.4, "time.t_end": 30.0, "output.snapshots": 15},
+    doc="Flow past a circular cylinder (thesis §4.5.2): a cylinder of radius `radius` in a free stream "
+        "at Reynolds number `re` and Mach number `mach`, body-fitted polar layout, no-slip body by the "
+        "boundary integral of thesis eq. 4.24, frozen free-stream far field beyond `r_far`; drag, lift "
+        "and pressure coefficients against thesis Table 4.1.")
+
+
+def _title(cfg, n: int, t: float | None = None) -> str:
+    s, c = cfg["scheme"], cfg["case"]
+    when = f", t={t:.4g}" if t is not None else ""
+    return (f"cylinder (Re={c['re']:g}, M={c['mach']:g}, {c['n_theta']} on the body, {n} particles{when}): "
+            f"{s['method']}, reconstruction degree {s['reconstruction_degree']}")
+
+
+# --- post-processing ----------------------------------------------------------------------------
+
+def wall_cp(p: Particles, P, walls, scheme, p_inf: float, q_inf: float):
+    """``(theta[Nb], cp[Nb])`` at the body's quadrature points, C_p from the wall pressure p_b of
+    the boundary integral (:meth:`~mlsph_jax.wall_integral.BoundaryIntegralWalls.wall_state`)."""
+    prim = to_primitive(p.U, get_eos(scheme.eos), P)
+    bp, _, _, pb, _ = walls.wall_state(p, P, scheme, prim)
+    on = np.asarray(bp.curve) == [cv.name for cv in walls.curves].index(BODY)
+    x = np.asarray(bp.x)[on]
+    theta = np.mod(np.arctan2(x[:, 1], x[:, 0]), 2.0 * math.pi)
+    return theta, (np.asarray(pb)[on] - p_inf) / q_inf
+
+
+def periodic_interpolate(theta: np.ndarray, f: np.ndarray, theta0: float) -> float:
+    """Cubic Lagrange interpolation at ``theta0`` of a 2 pi-periodic ``f`` sampled at ``theta``
+    (the four samples nearest in angle; exact at a sample)."""
+    d = np.angle(np.exp(1j * (np.asarray(theta) - theta0)))      # signed angular offsets in (-pi, pi]
+    k = np.argsort(np.abs(d))[:4]
+    if np.abs(d[k[0]]) < 1e-12:
+        return float(f[k[0]])
+    xs, ys = d[k], np.asarray(f)[k]
+    w = [np.prod([(0.0 - xs[m]) / (xs[j] - xs[m]) for m in range(4) if m != j]) for j in range(4)]
+    return float(np.dot(w, ys))
+
+
+def recirculation_length(p: Particles, P, scheme, radius: float, n_theta: int) -> float:
+    """L_w / D (module docstring)."""
+    fluid = np.asarray(p.kind) == int(Kind.FLUID)
+    x = np.asarray(p.x)[fluid]
+    u = np.asarray(to_primitive(p.U, get_eos(scheme.eos), P).vel)[fluid, 0]
+    r = np.hypot(x[:, 0], x[:, 1])
+    theta = np.mod(np.arctan2(x[:, 1], x[:, 0]), 2.0 * math.pi)
+    dtheta = 2.0 * math.pi / n_theta
+    j = np.rint(theta / dtheta - 0.5).astype(int) % n_theta
+    up, dn = j == 0, j == n_theta - 1
+    ru, rd = r[up], r[dn]
+    order_u, order_d = np.argsort(ru), np.argsort(rd)
+    rr = ru[order_u]
+    ua = 0.5 * (u[up][order_u] + u[dn][order_d])
+    xa = rr * math.cos(0.5 * dtheta)
+    back = np.flatnonzero(ua < 0.0)
+    if back.size == 0:
+        return 0.0
+    ahead = np.flatnonzero((ua >= 0.0) & (np.arange(len(ua)) > back[0]))
+    if ahead.size == 0:
+        return float((xa[-1] - radius) / (2.0 * radius))
+    k = int(ahead[0])
+    x0 = xa[k - 1] + (xa[k] - xa[k - 1]) * (-ua[k - 1]) / (ua[k] - ua[k - 1])
+    return float((x0 - radius) / (2.0 * radius))
+
+
+def plot_cp(path: Path, theta, cp, title: str = "") -> None:
+    """C_p(theta) at the wall (theta from the base, thesis Fig. 4.9) with Table 4.1's values."""
+    fig, ax = subplots(figsize=(6.0, 4.2))
+    order = np.argsort(theta)
+    ax.plot(np.degrees(theta[order]), cp[order], "o-", ms=3, label="MLSPH-ALE (wall p_b)")
+    for name, (_, front, base) in ref.TABLE_4_1.items():
+        ax.plot([0.0, 180.0, 360.0], [base, front, base], "x", ms=6, label=name)
+    ax.set_xlabel("theta [deg] (0 = base, 180 = front)")
+    ax.set_ylabel("C_p")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=6)
+    ax.set_title(title, fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+def plot_field(path: Path, p: Particles, P, scheme, radius: float, title: str = "", grid: int = 161) -> None:
+    """Speed contours with streamlines near the body (thesis Fig. 4.8), the particle velocities
+    interpolated linearly (``scipy.interpolate.griddata``) onto a grid of [-2D, 5D] x [-2D, 2D]."""
+    from scipy.interpolate import griddata
+
+    pr = to_primitive(p.U, get_eos(scheme.eos), P)
+    x, vel = np.asarray(p.x), np.asarray(pr.vel)
+    D = 2.0 * radius
+    gx, gy = np.linspace(-2 * D, 5 * D, grid), np.linspace(-2 * D, 2 * D, grid * 4 // 7)
+    X, Y = np.meshgrid(gx, gy)
+    U = griddata(x, vel[:, 0], (X, Y), method="linear")
+    V = griddata(x, vel[:, 1], (X, Y), method="linear")
+    inside = np.hypot(X, Y) < radius
+    U[inside] = V[inside] = np.nan
+    fig, ax = subplots(figsize=(8.0, 4.0))
+    cs = ax.contourf(X / D, Y / D, np.hypot(U, V), levels=24, cmap="viridis")
+    fig.colorbar(cs, ax=ax, label="|u| / U_inf")
+    ax.streamplot(gx / D, gy / D, np.nan_to_num(U), np.nan_to_num(V), density=1.4, color="w", linewidth=0.5,
+                  arrowsize=0.5)
+    from matplotlib.patches import Circle as Disc
+
+    ax.add_patch(Disc((0.0, 0.0), 0.5, color="0.6"))
+    ax.set_aspect("equal")
+    ax.set_xlabel("x / D")
+    ax.set_ylabel("y / D")
+    ax.set_title(title, fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)

@@ -1,0 +1,188 @@
+"""Flow past a cylinder (issue 17; SPEC §12.2 V9): the body-fitted polar layout, the frozen far
+field, the boundary-integral body and the ``cylinder`` case."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mlsph_jax.cases.layouts import polar_layout, polar_ring_edges
+from mlsph_jax.errors import InputError
+
+
+@pytest.mark.parametrize("n_theta, r_far, n_extra", [(32, 10.0, 0), (48, 7.5, 4), (120, 40.0, 4)])
+def test_polar_layout_volumes_are_the_annular_sectors(n_theta, r_far, n_extra):
+    """The volumes of the fluid rings sum to the annulus area pi (r_far^2 - R^2) to round-off, each
+    ring's to its own annulus, and every particle lies inside its own sector."""
+    R = 0.5
+    lay = polar_layout(R, n_theta, r_far, n_extra)
+    n_rings = len(lay.edges) - 1 - n_extra
+    assert lay.edges[0] == R and math.isclose(lay.edges[n_rings], r_far, rel_tol=1e-14)
+    fluid = lay.ring < n_rings
+    area = math.pi * (r_far ** 2 - R ** 2)
+    assert abs(lay.vol[fluid].sum() - area) <= 1e-13 * area
+    rings = np.bincount(lay.ring, weights=lay.vol)
+    np.testing.assert_allclose(rings, math.pi * np.diff(lay.edges ** 2), rtol=1e-13)
+    r = np.hypot(lay.x[:, 0], lay.x[:, 1])
+    assert np.all((r > lay.edges[lay.ring]) & (r < lay.edges[lay.ring + 1]))
+    # geometric growth with square cells: dr / (r dtheta) in (1 - dtheta, 1] for every ring
+    ratio = np.diff(lay.edges) / (lay.edges[:-1] * 2 * math.pi / n_theta)
+    assert np.allclose(ratio, ratio[0], rtol=1e-12) and 1 - 2 * math.pi / n_theta < ratio[0] <= 1 + 1e-12
+
+
+def test_polar_layout_thesis_count():
+    """The thesis' setup (V9): 120 points on the body and 10,800 particles (90 rings)."""
+    lay = polar_layout(0.5, 120, 40.0, 4)
+    assert len(lay.x) == 10_800 and len(lay.edges) - 1 == 90
+
+
+@pytest.mark.parametrize("args, key", [((0.5, 4, 10.0), "n_theta=4"), ((0.5, 32, 0.4), "r_far=0.4"),
+                                       ((-1.0, 32, 10.0), "radius=-1.0")])
+def test_polar_layout_bad_input(args, key):
+    with pytest.raises(InputError, match=key):
+        polar_ring_edges(*args)
+
+
+# --- the case: far field and body -------------------------------------------------------------
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+
+from mlsph_jax import config as config_mod  # noqa: E402
+from mlsph_jax import neighbors  # noqa: E402
+from mlsph_jax.cases import build_problem  # noqa: E402
+from mlsph_jax.cases.cylinder import free_stream  # noqa: E402
+from mlsph_jax.eos import get_eos, to_conservative  # noqa: E402
+from mlsph_jax.rhs import geometry, rhs  # noqa: E402
+from mlsph_jax.state import Kind  # noqa: E402
+from mlsph_jax.testing import CONFIG_DIR  # noqa: E402
+
+SMALL = ("case.n_theta=32", "case.r_far=3.0", "output.plots=false", "output.progress=false")
+
+
+def _problem(*overrides):
+    cfg = config_mod.load(CONFIG_DIR / "cylinder.toml", [*SMALL, *overrides])
+    return cfg, build_problem(cfg)
+
+
+def _with_velocity(pb, cfg, speed):
+    """The problem's particles with the free-stream state moving at ``speed`` along x."""
+    p = pb.particles
+    rho, vel, pr = free_stream(cfg, np.asarray(p.x), pb.params)
+    U = to_conservative(jnp.asarray(rho), jnp.asarray(vel) * speed, jnp.asarray(pr), get_eos(pb.scheme.eos),
+                        pb.params)
+    return p.replace(q=p.vol[:, None] * U)
+
+
+def _rhs(pb, p, boundary):
+    h = pb.scheme.beta * p.vol ** 0.5
+    _, nl = neighbors.allocate(p.x, h, pb.domain)
+    geom = geometry(p.x, p.vol, nl, pb.scheme, pb.domain)
+    return jax.jit(lambda p: rhs(p, pb.params, geom, pb.scheme, boundary))(p)
+
+
+def test_uniform_stream_without_body_stays_uniform_and_far_field_is_frozen():
+    """The cylinder's layout with its frozen far field and no body: a uniform free stream has a
+    zero right-hand side to round-off (it stays uniform), and frozen particles get no update."""
+    cfg, pb = _problem()
+    p = pb.particles
+    _, _, dq = _rhs(pb, p, None)
+    scale = float(jnp.max(jnp.abs(p.q)))
+    assert float(jnp.max(jnp.abs(dq))) <= 1e-12 * scale
+    frozen = np.asarray(p.kind) == int(Kind.FROZEN)
+    assert frozen.sum() == 32 * 4 and np.all(np.asarray(dq)[frozen] == 0.0)
+
+
+def test_body_terms_vanish_for_a_uniform_state_at_rest():
+    """With the body: fluid at rest with uniform pressure has zero boundary terms (F_b . n = p n =
+    F_i . n at every wall point) and zero right-hand side to round-off; the same fluid moving
+    through the no-slip body does not (the check can fail)."""
+    cfg, pb = _problem()
+    p = _with_velocity(pb, cfg, 0.0)
+    _, _, dq = _rhs(pb, p, pb.boundary)
+    scale = float(jnp.max(jnp.abs(p.q)))
+    assert float(jnp.max(jnp.abs(dq))) <= 1e-12 * scale
+    _, _, dq_moving = _rhs(pb, pb.particles, pb.boundary)
+    assert float(jnp.max(jnp.abs(dq_moving))) > 1e-3 * scale
+
+
+def test_force_on_body_at_rest_is_the_buoyancy():
+    """Archimedes: fluid at rest in the isothermal atmosphere p = p_inf exp(-a y), a = rho_inf g /
+    p_inf, under the body force (0, -g).  The force of the fluid on the body, sum_b p_b n_b dGamma_b,
+    equals -int_body grad p dA = 2 pi R p_inf I_1(a R) upward (no viscous part at rest); the wall
+    pressure is the linear MLS interpolant of p, so the error is O((a h)^2) relative, below (a R)^2."""
+    from scipy.special import i1
+
+    g = 1.0
+    cfg, pb = _problem(f"physics.body_force=[0.0, {-g}]")
+    p = _with_velocity(pb, cfg, 0.0)
+    total, pressure = pb.boundary.forces(p, pb.params, pb.scheme)
+    p_inf = float(free_stream(cfg, np.zeros((1, 2)), pb.params)[2][0])
+    a, R = 1.0 * g / p_inf, cfg["case"]["radius"]
+    exact = 2.0 * math.pi * R * p_inf * i1(a * R)
+    f = np.asarray(total[0])
+    # measured: 1.9e-7 relative at g = 1 and 1.9e-5 at g = 10 (quadratic in a); bound (a R)^2 = 4.9e-5
+    assert abs(f[1] - exact) <= (a * R) ** 2 * exact, (f, exact)
+    assert abs(f[0]) <= 1e-12 * exact and np.array_equal(np.asarray(total), np.asarray(pressure))
+
+
+@pytest.mark.parametrize("overrides, words", [
+    (("case.r_far=0.65",), ["case.r_far=0.65", "far-field rings", "allowed: case.r_far > 0.6678"]),
+    (("case.radius=9.5", "case.r_far=10.0"), ["case.radius=9.5", "case.r_far=10", "too big for the layout"]),
+    (("case.n_theta=24",), ["case.n_theta", "24", ">= 32"]),
+    (("case.r_far=0.4",), ["case.r_far=0.4", "outer radius > case.radius=0.5"]),
+    (("eos.kind=\"tait\"", "eos.rho0=1.0", "eos.c0=10.0"), ["eos.kind", "ideal_gas"]),
+    (("physics.mu=0.5",), ["physics.mu=0.5", "case.re"]),
+])
+def test_bad_cylinder_configs_name_the_key(overrides, words):
+    """A body overlapping the far-field rings, a body too big for the layout, too few points
+    around the body, a far field inside the body, the wrong fluid or viscosity: ConfigError naming
+    the key, its value and what is allowed."""
+    from mlsph_jax.errors import ConfigError
+
+    with pytest.raises(ConfigError) as e:
+        config_mod.load(CONFIG_DIR / "cylinder.toml", list(overrides))
+    for w in words:
+        assert w in str(e.value), (w, str(e.value))
+
+
+# --- Re = 40 runs ----------------------------------------------------------------------------
+
+from mlsph_jax.reference.cylinder import RE40_TARGETS  # noqa: E402
+from mlsph_jax.simulation import run_problem  # noqa: E402
+
+#: Drag coefficient of the steady flow at Re = 20 (thesis ch. 4 references: 2.0-2.1): a coarse
+#: Re = 40 run must stay below it (a viscosity twice too large, or the plain Rusanov flux's
+#: low-Mach dissipation, C_D 2.96 at n_theta = 32, ends above it).
+CD_RE20 = 2.0
+COARSE = ("case.n_theta=32", "case.r_far=4.0", "case.mach=0.2", "time.t_end=4.0", "output.snapshots=2",
+          "case.steady_tol=0")
+
+
+def test_coarse_re40_drag_in_band():
+    """Coarse Re = 40 run (n_theta = 32, far field at 4 D, Mach 0.2 for half the steps, t = 4
+    after the impulsive start, 512 particles, ~700 steps): C_D
+    between 0.97 x 1.56 (the study in docs/validation.md: C_D falls towards the references from
+    above with time, resolution and far-field radius) and the Re = 20 drag; the flow is symmetric
+    (|C_L| small) and the pressure drag dominates as at Re = 40 (C_D,p / C_D ~ 0.65-0.7)."""
+    cfg = config_mod.load(CONFIG_DIR / "cylinder.toml", [*COARSE, "output.plots=false", "output.progress=false"])
+    m = run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True).summary["metrics"]
+    cd = m["cd"]
+    assert 0.97 * RE40_TARGETS["cd"][0] < cd < CD_RE20, m
+    assert abs(m["cl"]) < 0.01 * cd
+    assert 0.6 < m["cd_pressure"] / cd < 0.75, m
+
+
+@pytest.mark.slow
+def test_builtin_config_meets_the_re40_targets():
+    """configs/cylinder.toml as shipped (n_theta = 48, far field at 40 D, t = 30) against issue
+    17's Re = 40 targets: C_D within 3 % of 1.56, C_p front within 4 % of 1.18, base within 8 % of
+    -0.51, L_w / D within 10 % of 2.3 (about 16 min on 2 shared cores).  Measured at t = 28
+    (docs/validation.md): C_D 1.578 and C_p front 1.136 meet theirs, C_p base -0.562 and L_w / D
+    1.55 do not (the wake is under-resolved at n_theta = 48), so this test is expected to fail."""
+    cfg = config_mod.load(CONFIG_DIR / "cylinder.toml", ["output.plots=false", "output.progress=false"])
+    m = run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True).summary["metrics"]
+    for key, (value, tol) in RE40_TARGETS.items():
+        assert abs(m[key] - value) <= tol * abs(value), (key, m[key], value, tol)
