@@ -114,7 +114,7 @@ class SnapshotWriter:
         if not self.h5_path.is_file():
             raise InputError(f"invalid restart: {where} does not exist; allowed: the fields.h5 of the run")
         try:
-            with h5py.File(self.h5_path, "a") as f:
+            with h5py.File(self.h5_path, "a", locking=False) as f:   # as in write(): readers do not block
                 if f.attrs.get("format") != FORMAT or int(f.attrs.get("dim", -1)) != self.dim:
                     raise InputError(f"invalid restart: {where} is not a {self.dim}D {FORMAT} file (format "
                                      f"{f.attrs.get('format')!r}, dim {f.attrs.get('dim')!r})")
@@ -158,7 +158,10 @@ class SnapshotWriter:
             meta[k] = v if isinstance(v, str) else _finite_scalar(f"attrs[{k!r}]", v)
         data = self._check_fields(fields)
         name = f"{self.count:05d}"
-        with h5py.File(self.h5_path, "a") as f:
+        # no file lock: a user (another process) reading fields.h5 while the run writes must not stop
+        # the run (HDF5 would refuse the append with "unable to lock file"); the reader may then see
+        # the snapshot being written half done, the file itself stays whole
+        with h5py.File(self.h5_path, "a", locking=False) as f:
             n = data["x"].shape[0]
             if _CONNECTIVITY not in f or f[_CONNECTIVITY].shape[0] != n:   # the Polyvertex topology
                 if _CONNECTIVITY in f:

@@ -226,3 +226,23 @@ def test_meshio_reads_every_time_step_with_attributes_of_the_right_shape(tmp_pat
         assert f["snapshots/00000/kind"].attrs["codes"] == f.attrs["kind_codes"]
     xmf = (tmp_path / "fields.xmf").read_text()
     assert 'Name="vel" AttributeType="Matrix"' not in xmf
+
+
+def test_a_reader_in_another_process_does_not_stop_the_writer(tmp_path):
+    """Looking at fields.h5 (h5py, ParaView) while a run writes it must not stop the run: HDF5's
+    file lock refused the append ("unable to lock file") before the writer opened without it."""
+    w = mio.SnapshotWriter(tmp_path, 2)
+    w.write(0.0, _fields(5, 2))
+    reader = subprocess.Popen(
+        [sys.executable, "-c", f"import h5py, time; f = h5py.File({str(w.h5_path)!r}, 'r'); print('open', flush=True); "
+                               "time.sleep(60)"], stdout=subprocess.PIPE, text=True)
+    try:
+        assert reader.stdout.readline().strip() == "open"
+        w.write(0.1, _fields(5, 2, seed=1.0))
+    finally:
+        reader.kill()
+        reader.wait()
+    w.close()
+    with h5py.File(w.h5_path, "r") as f:
+        assert sorted(f["snapshots"]) == ["00000", "00001"]
+        np.testing.assert_array_equal(f["snapshots/00001/rho"][()], _fields(5, 2, seed=1.0)["rho"])
