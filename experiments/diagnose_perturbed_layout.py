@@ -36,7 +36,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mlsph_jax import approximation as apx
 from mlsph_jax import config
 from mlsph_jax import neighbors as nb
 from mlsph_jax.cases import build_problem
@@ -57,15 +56,9 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     "beta 2": ("scheme.beta=2.0",),
     "no thornber": ("scheme.low_mach_reconstruction=none",),
     "recon deg 2": ("scheme.reconstruction_degree=2",),
-    "corr closure": ("scheme.area_correction=closure",),
     "corr linear": ("scheme.area_correction=linear",),
     "corr quadratic": ("scheme.area_correction=quadratic",),
-    "corr quadratic w0": ("scheme.area_correction=quadratic_w0",),
-    "corr quadratic w05": ("scheme.area_correction=quadratic_w05",),
-    "corr linear w0": ("scheme.area_correction=linear_w0",),
-    "corr linear noclosure": ("scheme.area_correction=linear_noclosure",),
-    "corr quadratic noclosure": ("scheme.area_correction=quadratic_noclosure",),
-    "corr quadratic noclosure w0": ("scheme.area_correction=quadratic_noclosure_w0",),
+    "no corr": ("scheme.area_correction=none",),
 }
 
 
