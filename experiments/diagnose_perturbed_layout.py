@@ -21,6 +21,8 @@ at several resolutions, so that the observed order of each defect says which one
 
     python experiments/diagnose_perturbed_layout.py [--sizes 25 50 100] [--set KEY=VALUE ...]
         [--variants NAME ...]
+    python experiments/diagnose_perturbed_layout.py --runs T_END ...   # whole runs instead
+    python experiments/diagnose_perturbed_layout.py --bench --sizes 50 100  # cost of the correction
 
 Writes experiments/output/diagnose_perturbed_layout.json.
 """
@@ -152,6 +154,36 @@ def run(n: int, layout: str, overrides: tuple[str, ...], t_end: float) -> dict:
             "wall_s": time.perf_counter() - t0, "status": s["status"]}
 
 
+def bench(n: int, repeat: int = 3) -> dict:
+    """Cost of the correction: the geometry (areas, fit, weights) of the perturbed n x n layout with
+    ``area_correction`` none (A) and quadratic (B), each jitted once, timed interleaved A B A B ...,
+    best of ``repeat``; plus one whole right-hand side for scale."""
+    import os
+    out = {"n": n, "particles": n * n, "load_average": os.getloadavg()}
+    fns = {}
+    for name in ("none", "quadratic"):
+        cfg = config.load(CONFIG, [f"case.n={n}", "case.layout=perturbed", f"scheme.area_correction={name}"])
+        pb = build_problem(cfg)
+        sch, p = pb.scheme, pb.particles
+        h = sch.beta * jnp.sqrt(p.vol)
+        _, nl = nb.allocate(np.asarray(p.x), np.asarray(h), pb.domain, support=sch.support, headroom=1.6)
+        f = jax.jit(lambda x, v, nl=nl, sch=sch, dom=pb.domain: geometry(x, v, nl, sch, dom).A)
+        t0 = time.perf_counter()
+        f(p.x, p.vol).block_until_ready()
+        out[f"compile_s_{name}"] = time.perf_counter() - t0
+        fns[name] = (f, p)
+    best = {k: float("inf") for k in fns}
+    for _ in range(repeat):
+        for name, (f, p) in fns.items():
+            t0 = time.perf_counter()
+            f(p.x, p.vol).block_until_ready()
+            best[name] = min(best[name], time.perf_counter() - t0)
+    for name, t in best.items():
+        out[f"geometry_s_{name}"] = t
+        out[f"particle_updates_per_s_{name}"] = n * n / t
+    return out
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[25, 50, 100])
@@ -160,7 +192,16 @@ def main(argv=None):
     ap.add_argument("--set", nargs="*", default=[], help="extra KEY=VALUE overrides for every row")
     ap.add_argument("--runs", type=float, default=None, metavar="T_END",
                     help="instead of the operator measurements: whole runs to T_END")
+    ap.add_argument("--bench", action="store_true",
+                    help="instead: time the geometry with and without the correction at each size")
     args = ap.parse_args(argv)
+    if args.bench:
+        rows = [bench(n) for n in args.sizes]
+        for r in rows:
+            print(json.dumps(r), flush=True)
+        OUT.mkdir(parents=True, exist_ok=True)
+        (OUT / "diagnose_perturbed_layout_bench.json").write_text(json.dumps(rows, indent=1))
+        return
     if args.runs is not None:
         keys = ("ke_signed_error", "l2_velocity_error", "l2_pressure_error", "mass_drift", "n_steps", "wall_s")
         print("| variant | layout | n | " + " | ".join(keys) + " |", flush=True)
