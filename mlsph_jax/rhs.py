@@ -122,6 +122,7 @@ def geometry(x, vol, nl, scheme: Scheme, domain: Domain) -> Geometry:
         fit = apx.build_from_offsets(dx, h, vol, idx, mask, scheme.reconstruction_spec(), coeffs_only=True)
         coeffs, fit_deg = fit.coeffs, fit.degree
     A = jnp.where(pair_mask[..., None], A, 0.0)
+    A = scheme.component("area_correction").apply(A, dx, h, vol, jsafe, rev, pair_mask)
     return Geometry(idx, mask, rev, pair_mask, dx, A, h, coeffs, interp, nl.overflow,
                     fallback.stack(area_deg, fit_deg, n))
 

@@ -11,6 +11,7 @@ import dataclasses
 from collections.abc import Mapping
 
 from .approximation import APPROXIMATIONS, ApproxSpec
+from .area_correction import AREA_CORRECTIONS
 from .eos import EOS_REGISTRY, get_eos
 from .errors import InputError
 from .flux import DISSIPATION_NORMALS, FLUXES, WAVE_SPEEDS
@@ -28,6 +29,7 @@ __all__ = ["COMPONENTS", "Scheme", "default_beta"]
 COMPONENTS: dict[str, Registry] = {
     "method": METHODS,
     "approximation": APPROXIMATIONS,
+    "area_correction": AREA_CORRECTIONS,
     "kernel": KERNELS,
     "reconstruction": RECONSTRUCTIONS,
     "reconstruction_variables": RECONSTRUCTION_VARIABLES,
@@ -65,6 +67,8 @@ class Scheme:
                               0 = not given
     parachute_flux:           flux of the pairs MOOD reconstructs at first order: ``same`` (the
                               scheme's flux) or a registered flux (e.g. ``rusanov``)
+    area_correction:          ``none`` | ``linear`` | ``quadratic``: consistency correction of
+                              the area vectors (:mod:`mlsph_jax.area_correction`, decision 59)
     self_flux:                keep the -F_i . sum_j A_ij term (thesis eq. 4.36)
     frame:                    ``eulerian`` | ``lagrangian`` | ``ale_shift`` (w = u + dw)
     shift_coefficient:        C of the shifting drift (:func:`mlsph_jax.rhs.shifting_velocity`)
@@ -96,6 +100,7 @@ class Scheme:
     flux: str = "rusanov"
     wave_speed: str = "rusanov_abs"
     dissipation_normal: str = "area"
+    area_correction: str = "none"
     self_flux: bool = True
     reference_mach: float = 0.0
     parachute_flux: str = "same"

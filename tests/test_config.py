@@ -424,7 +424,7 @@ def test_component_keys_follow_their_registries(monkeypatch):
     assert set(component_keys) == {
         "method", "approximation", "kernel", "reconstruction", "reconstruction_variables", "flux", "wave_speed",
         "dissipation_normal", "frame", "shift_law", "stress", "position_update", "limiter", "mood_delta_floor",
-        "mood_variables", "low_mach_reconstruction", "parachute_flux"}
+        "mood_variables", "low_mach_reconstruction", "parachute_flux", "area_correction"}
     assert not C.SCHEMA_COMMON["scheme"]["derivative"].registered  # a plain choice, not a component
     kinds = all_registries()
     # the parachute flux: "same" or any registered flux

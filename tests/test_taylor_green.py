@@ -175,13 +175,16 @@ def test_builtin_config_meets_the_issue_14_targets(n, target, u_measured):
 
 
 @pytest.mark.slow
-def test_builtin_config_perturbed_layout_error_is_bounded():
-    """The perturbed 50 x 50 layout (+-0.15 dx, seed 0) at the built-in defaults: measured
-    ke_rel_error 0.0097 (plain Rusanov at c0 = 10: 0.0045); asserted + 25 %.  The issue's 0.1 %
-    target is NOT met on this layout (docs/validation.md, "Taylor-Green defaults": what the
-    perturbed layout loses)."""
+def test_builtin_config_meets_the_target_on_the_perturbed_layout():
+    """Issue 14: E_k error at t* = 1 <= 0.1 % also on the perturbed 50 x 50 layout (+-0.15 dx,
+    seed 0), the built-in config at its defaults (~6 min on 2 shared cores).  Measured with the
+    quadratic area correction (decision 59): ke_rel_error 2.6e-4, velocity L2 3.81e-4, pressure L2
+    1.96e-3, the Cartesian run's level; without it 0.0097 / 0.0088 / 0.041.  The L2 errors are
+    asserted within their measured values + 25 %."""
     m = _run_builtin("case.n=50", "case.layout=perturbed")["metrics"]
-    assert m["ke_rel_error"] < 0.0097 * 1.25
+    assert m["ke_rel_error"] <= 0.001
+    assert m["l2_velocity_error"] < 3.81e-4 * 1.25
+    assert m["l2_pressure_error"] < 1.96e-3 * 1.25
 
 
 # -- bad input ---------------------------------------------------------------------------------

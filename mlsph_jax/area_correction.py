@@ -1,0 +1,122 @@
+"""Consistency correction of the area vectors (registry ``scheme.area_correction``; decision 59).
+
+With the self-flux term (``scheme.self_flux``, thesis eq. 4.36) the convective rate of particle i
+is - sum_j (G_ij - F_i) . A_ij, which for a smooth flux and exact midpoint states G_ij = F(x_ij),
+x_ij = (x_i + x_j)/2, should equal - V_i div F(x_i).  With the MLSPH-ALE area vectors
+A_ij = V_i grad N_j(x_i) - V_j grad N_i(x_j) (thesis eq. 4.36, 5.77) this holds, for fluxes of
+degree <= q, when at every particle i and for every monomial phi of degree 1..q of
+xi = (x - x_i)/h_i
+
+    sum_j A_ij [phi(xi_ij) - phi(0)] = V_i grad phi(x_i),      xi_ij = (x_ij - x_i)/h_i.     (*)
+
+The first half of A_ij (the MLS gradients at x_i) satisfies its share of (*) exactly; the second
+half, - V_j grad N_i(x_j), is a one-point quadrature of int -grad N_i (...) and satisfies it only
+on symmetric (lattice) stencils.  On a layout jittered by +-0.15 dx the linear rows of (*) are
+off by ~9 % rms *at every resolution*: a zeroth-order error of the divergence, which dominates
+the Taylor-Green error on that layout (docs/validation.md, "Taylor-Green on the perturbed layout").
+
+``linear`` / ``quadratic`` add the smallest antisymmetric Delta A (least squares over the stencil
+pairs, equal weights) for which (*) holds exactly to degree q = 1 / 2: the midpoint divergence of
+every flux of degree <= q is then exact on any layout (second-order consistent for ``quadratic``).
+Antisymmetry (Delta A_ji = -Delta A_ij, hence conservation of the pair terms) is kept by
+construction: Delta A_ij = Y_ij - Y_ji.  The constraints couple neighbouring particles; the
+normal equations L L^T mu = r are solved by block-Jacobi preconditioned conjugate gradients
+(matrix-free, jit-able, differentiable).  The closure sum_j A_ij (the quadrature defect of SPEC
+§5.5) is not constrained: with it the system converged 10 x slower and gave a larger error
+(decision 59).  On a lattice (*) already holds to round-off, so the areas are unchanged there.
+One CG solve per geometry: once per chunk for Eulerian particles, once per stage for moving ones.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+
+from .approximation import basis
+from .registry import Registry
+from .stencil import reverse_gather
+
+AREA_CORRECTIONS: Registry = Registry("scheme.area_correction", protocol=("apply",),
+                                      doc="corrections of the area vectors A_ij")
+
+#: CG stopping rule (absolute residual of the constraints in units of the areas' size) and cap.
+CG_ATOL = 1e-13
+CG_MAXITER = 5000
+#: Relative regularisation of the normal equations and floor of the preconditioner blocks.
+EPS = 1e-10
+
+
+@dataclasses.dataclass(frozen=True)
+class NoCorrection:
+    """The thesis' one-point-quadrature area vectors, unchanged."""
+
+    def apply(self, A, dx, h, vol, jsafe, rev, pair_mask):
+        return A
+
+
+def constraint_planes(dx, h, degree: int):
+    """Q[N, K, m-1] = phi(xi_ij) for the monomials phi of degree 1..q of xi = (x - x_i)/h_i at the
+    pair midpoints (phi(0) = 0), and G[N, m-1, d] = grad phi(x_i): the rows of (*) are
+    sum_k A[i, k, a] Q[i, k, r] = V_i G[i, r, a]."""
+    xi = 0.5 * dx / h[:, None, None]
+    Q = basis.evaluate(xi, degree)[..., 1:]
+    G = jnp.asarray(basis.gradient_at_origin(degree, dx.shape[-1])[1:])[None] / h[:, None, None]
+    return Q, G
+
+
+def moment_defect(A, dx, h, vol, pair_mask, degree: int):
+    """Left minus right side of (*) per particle, ``[N, d, m-1]``, relative to V_i / h_i."""
+    Q, G = constraint_planes(dx, h, degree)
+    Q = jnp.where(pair_mask[..., None], Q, 0.0)
+    lhs = jnp.einsum("nka,nkr->nar", A, Q)
+    return (lhs - vol[:, None, None] * jnp.swapaxes(G, 1, 2)) * (h / vol)[:, None, None]
+
+
+@dataclasses.dataclass(frozen=True)
+class ConsistentCorrection:
+    """Smallest antisymmetric correction making the midpoint divergence exact to degree ``degree``
+    (module docstring)."""
+
+    degree: int = 2
+
+    def apply(self, A, dx, h, vol, jsafe, rev, pair_mask):
+        Q, G = constraint_planes(dx, h, self.degree)
+        Q = jnp.where(pair_mask[..., None], Q, 0.0)
+        target = vol[:, None, None] * jnp.swapaxes(G, 1, 2)          # [N, d, m-1]
+        w = pair_mask[..., None].astype(A.dtype)
+
+        def moments(a):                                              # [N, K, d] -> [N, d, m-1]
+            return jnp.einsum("nka,nkr->nar", a, Q)
+
+        def lift(y):                                                 # free slot field -> antisymmetric
+            return w * (y - reverse_gather(y, jsafe, rev))
+
+        def L(y):
+            return moments(lift(y))
+
+        LT = jax.linear_transpose(L, jnp.zeros_like(A))
+        # block-Jacobi preconditioner: the per-particle diagonal blocks 2 sum_k Q Q^T of L L^T, with
+        # a relative floor; the same small multiple regularises the normal equations
+        J = 2.0 * jnp.einsum("nk,nkr,nks->nrs", w[..., 0], Q, Q)
+        m = Q.shape[-1]
+        floor = EPS * jnp.trace(J, axis1=1, axis2=2) / m
+        Jinv = jnp.linalg.inv(J + floor[:, None, None] * jnp.eye(m))
+        reg = EPS * jnp.mean(floor)
+
+        def normal(mu):
+            return L(LT(mu)[0]) + reg * mu
+
+        def precond(v):
+            return jnp.einsum("nrs,nas->nar", Jinv, v)
+
+        scale = jnp.sqrt(jnp.sum((vol / h) ** 2))                    # the size of the areas (V / h)
+        r = (target - moments(A)) / scale
+        mu, _ = jax.scipy.sparse.linalg.cg(normal, r, tol=0.0, atol=CG_ATOL, maxiter=CG_MAXITER, M=precond)
+        return A + scale * lift(LT(mu)[0])
+
+
+AREA_CORRECTIONS.register("none", NoCorrection())
+AREA_CORRECTIONS.register("linear", ConsistentCorrection(1))
+AREA_CORRECTIONS.register("quadratic", ConsistentCorrection(2))
