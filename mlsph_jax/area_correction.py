@@ -25,6 +25,8 @@ normal equations L L^T mu = r are solved by block-Jacobi preconditioned conjugat
 §5.5) is not constrained: with it the system converged 10 x slower and gave a larger error
 (decision 59).  On a lattice (*) already holds to round-off, so the areas are unchanged there.
 One CG solve per geometry: once per chunk for Eulerian particles, once per stage for moving ones.
+``apply`` returns ``(A, converged)``; a solve that stops at ``CG_MAXITER`` above its tolerance sets
+``Status.AREA_CORRECTION_UNCONVERGED`` (through ``Geometry.overflow``), which stops the run loudly.
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ from .registry import Registry
 from .stencil import reverse_gather
 
 AREA_CORRECTIONS: Registry = Registry("scheme.area_correction", protocol=("apply",),
-                                      doc="corrections of the area vectors A_ij")
+                                      doc="corrections of the area vectors A_ij; apply(...) -> (A, converged)")
 
 #: CG stopping rule (absolute residual of the constraints in units of the areas' size) and cap.
 CG_ATOL = 1e-13
@@ -53,7 +55,7 @@ class NoCorrection:
     """The thesis' one-point-quadrature area vectors, unchanged."""
 
     def apply(self, A, dx, h, vol, jsafe, rev, pair_mask):
-        return A
+        return A, jnp.asarray(True)
 
 
 def constraint_planes(dx, h, degree: int):
@@ -114,7 +116,11 @@ class ConsistentCorrection:
         scale = jnp.sqrt(jnp.sum((vol / h) ** 2))                    # the size of the areas (V / h)
         r = (target - moments(A)) / scale
         mu, _ = jax.scipy.sparse.linalg.cg(normal, r, tol=0.0, atol=CG_ATOL, maxiter=CG_MAXITER, M=precond)
-        return A + scale * lift(LT(mu)[0])
+        # jax's cg returns no convergence flag: the residual of the normal equations, checked
+        # against a hundred times the stopping tolerance (a solve that ran into CG_MAXITER)
+        res = normal(mu) - r
+        converged = jax.lax.stop_gradient(jnp.sqrt(jnp.sum(res * res)) <= 100.0 * CG_ATOL)
+        return A + scale * lift(LT(mu)[0]), converged
 
 
 AREA_CORRECTIONS.register("none", NoCorrection())

@@ -151,9 +151,11 @@ def make_verlet_stage_geometry(scheme: Scheme, domain: Domain, nspec, skin: floa
 
 
 def with_overflow_bits(geom: Geometry, nl) -> Geometry:
-    """``geom`` with ``overflow`` holding the list's cause bits (``NeighborList.overflow_bits``,
-    equal to the :class:`Status` neighbour bits) instead of a bool."""
-    return dataclasses.replace(geom, overflow=jnp.asarray(nl.overflow_bits, jnp.int32))
+    """``geom`` with the neighbour bits of ``overflow`` replaced by the list's cause bits
+    (``NeighborList.overflow_bits``, equal to the :class:`Status` neighbour bits); its other bits
+    (an unconverged area correction) stay."""
+    other = jnp.asarray(overflow_bits(geom)) & ~jnp.int32(Status.NEIGHBOR_OVERFLOW)
+    return dataclasses.replace(geom, overflow=other | jnp.asarray(nl.overflow_bits, jnp.int32))
 
 
 def overflow_bits(geom: Geometry) -> jax.Array:

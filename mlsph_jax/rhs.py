@@ -61,6 +61,7 @@ from .kernels import get_kernel
 from .reconstruction import reconstruct
 from .scheme import Scheme
 from .state import Domain, Kind, Params, Particles
+from .status import Status
 from .stencil import flat_reverse_index
 from .viscous import diffusive_fields, pair_diffusive_flux, self_diffusive_flux, viscous_terms
 
@@ -76,7 +77,9 @@ class Geometry:
     idx/mask/rev: neighbour list; pair_mask excludes padding and self; dx[N,K,d] = x_j - x_i;
     A[N,K,d] area vectors; h[N]; coeffs[N,m,K] reconstruction fit (None for first order);
     interp[N,K] weights of the position update; degree[N,2] the active degree of the area shape
-    functions and of the fit after fallback (-1: none; :mod:`mlsph_jax.fallback`).
+    functions and of the fit after fallback (-1: none; :mod:`mlsph_jax.fallback`); overflow the
+    int32 :class:`~mlsph_jax.status.Status` bits of the geometry (neighbour overflow, an
+    unconverged area correction).
     """
 
     idx: jax.Array
@@ -122,8 +125,12 @@ def geometry(x, vol, nl, scheme: Scheme, domain: Domain) -> Geometry:
         fit = apx.build_from_offsets(dx, h, vol, idx, mask, scheme.reconstruction_spec(), coeffs_only=True)
         coeffs, fit_deg = fit.coeffs, fit.degree
     A = jnp.where(pair_mask[..., None], A, 0.0)
-    A = scheme.component("area_correction").apply(A, dx, h, vol, jsafe, rev, pair_mask)
-    return Geometry(idx, mask, rev, pair_mask, dx, A, h, coeffs, interp, nl.overflow,
+    A, converged = scheme.component("area_correction").apply(A, dx, h, vol, jsafe, rev, pair_mask)
+    # Status bits: the list's overflow (cause unknown here: all three neighbour bits; the drivers
+    # replace them by the list's own bits) and an unconverged area correction
+    bits = (jnp.where(nl.overflow, jnp.int32(Status.NEIGHBOR_OVERFLOW), 0)
+            | jnp.where(converged, 0, jnp.int32(Status.AREA_CORRECTION_UNCONVERGED))).astype(jnp.int32)
+    return Geometry(idx, mask, rev, pair_mask, dx, A, h, coeffs, interp, bits,
                     fallback.stack(area_deg, fit_deg, n))
 
 

@@ -49,6 +49,7 @@ class Status(enum.IntFlag):
     GHOST_BAND = 1024
     WALL_CROSSED = 2048
     BOUNDARY_OVERFLOW = 4096
+    AREA_CORRECTION_UNCONVERGED = 8192
     #: any neighbour-list overflow (the three neighbour bits)
     NEIGHBOR_OVERFLOW = NEIGHBOR_OVERFLOW_ROW | NEIGHBOR_OVERFLOW_CELL | NEIGHBOR_OVERFLOW_REACH
 
@@ -84,6 +85,9 @@ _DESCRIPTIONS = {
                           "beyond a wall segment; nothing keeps moving particles in the fluid but the wall pressure)"),
     Status.BOUNDARY_OVERFLOW: ("a boundary-integral wall point has more particles within its support than the stencil "
                                "capacity sized at set-up (the particles crowded against a wall)"),
+    Status.AREA_CORRECTION_UNCONVERGED: ("the conjugate-gradient solve of scheme.area_correction stopped at its "
+                                         "iteration cap (area_correction.CG_MAXITER) above its tolerance: the area "
+                                         "vectors are only partly corrected"),
     Status.DT_UNDERFLOW: "time step underflow (below time.dt_min * t_end)",
     Status.NEIGHBOR_OVERFLOW_ROW: "neighbour-list overflow: a particle has more neighbours than the row capacity",
     Status.NEIGHBOR_OVERFLOW_CELL: "neighbour-list overflow: a cell holds more particles than the cell capacity",

@@ -125,3 +125,23 @@ def test_gradient_through_the_correction_matches_central_differences():
     fd = (f(x + eps * v) - f(x - eps * v)) / (2 * eps)
     ad = jnp.sum(jax.grad(f)(x) * v)
     assert float(ad) == pytest.approx(float(fd), rel=1e-6)
+
+
+def test_an_unconverged_correction_is_reported_and_stops_the_run(monkeypatch):
+    """A CG solve that stops at its cap sets Status.AREA_CORRECTION_UNCONVERGED in the geometry
+    (a converged one does not), and a run with it stops loudly naming the cause: a partly
+    corrected geometry is never used silently."""
+    import mlsph_jax.area_correction as ac
+    from mlsph_jax.errors import SimulationError
+    from mlsph_jax.simulation import run_problem
+    from mlsph_jax.status import Status
+
+    g, _ = _geometry("perturbed", "quadratic")
+    assert int(g.overflow) == 0
+    monkeypatch.setattr(ac, "CG_MAXITER", 2)
+    g, _ = _geometry("perturbed", "quadratic")
+    assert int(g.overflow) == Status.AREA_CORRECTION_UNCONVERGED
+    cfg = config.loads(BASE, ["case.n=10", "case.layout=perturbed", "scheme.area_correction=quadratic",
+                              "time.t_end=0.01", "output.plots=false", "output.progress=false"])
+    with pytest.raises(SimulationError, match="area_correction"):
+        run_problem(build_problem(cfg), cfg, quiet=True)

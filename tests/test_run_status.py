@@ -56,7 +56,7 @@ def test_status_bits_are_distinct_and_described():
     assert {s.name for s in single} == {
         "NONFINITE", "INADMISSIBLE", "NEGATIVE_DENSITY", "NEGATIVE_VOLUME", "NEIGHBOR_OVERFLOW_ROW",
         "NEIGHBOR_OVERFLOW_CELL", "NEIGHBOR_OVERFLOW_REACH", "DT_UNDERFLOW", "DT_ABOVE_CFL", "MOOD_UNRESOLVED",
-        "GHOST_BAND", "WALL_CROSSED", "BOUNDARY_OVERFLOW"}
+        "GHOST_BAND", "WALL_CROSSED", "BOUNDARY_OVERFLOW", "AREA_CORRECTION_UNCONVERGED"}
     assert len({int(s) for s in single}) == len(single)
     assert all(bin(int(s)).count("1") == 1 for s in single)
     assert (Status.NEIGHBOR_OVERFLOW_ROW, Status.NEIGHBOR_OVERFLOW_CELL, Status.NEIGHBOR_OVERFLOW_REACH) == (
