@@ -56,7 +56,7 @@ import numpy as np
 
 from .approximation import basis, mls
 from .boundaries import BOUNDARIES
-from .eos import get_eos
+from .eos import Primitive, get_eos
 from .errors import InputError
 from .flux import ale_flux_dot
 from .geometry import Segment, check_geometry, curve_params, quadrature
@@ -117,6 +117,28 @@ def constrained_gradient(st: WallStencils, u, u_wall, kernel, degree: int):
     coef = jnp.linalg.solve(M, rhs)                                           # [Nb, m-1, d]
     g0 = jnp.asarray(basis.gradient_at_origin(degree, d)[1:], st.h.dtype)     # [m-1, d]
     return jnp.einsum("mc,bma->bac", g0, coef) / st.h[:, None, None]
+
+
+def moment_defect(p: Particles, geom, st: WallStencils, weight, normal):
+    """``V_i E_i [N, d, d]``: the first-moment defect of the rows near a wall,
+    sum_j dx_ij (x) A_ij / 2 + sum_b dGamma_b N_i(x_b) (x_b - x_i) (x) n_b / 2 - V_i I
+    (zero to round-off in the interior of a lattice; ``weight[Nb, K]`` = dGamma_b N_j(x_b))."""
+    n, d = p.x.shape
+    pairs = 0.5 * jnp.einsum("nk,nka,nkc->nac", geom.pair_mask, geom.dx, geom.A)
+    wall = jnp.einsum("bk,bka,bc->bkac", jnp.where(st.mask, weight, 0.0), -st.dx, normal)
+    wall = jnp.zeros((n, d, d), pairs.dtype).at[st.idx.reshape(-1)].add(0.5 * wall.reshape(-1, d, d))
+    return pairs + wall - p.vol[:, None, None] * jnp.eye(d, dtype=pairs.dtype)
+
+
+def fit_gradient(geom, f, degree: int):
+    """Gradient ``[N, ..., d]`` at every particle of the fields ``f[N, ...]`` from the particle's own
+    fixed-centre fit (``geom.coeffs``, degree ``degree``), applied to f_j - f_i (exactly zero for a
+    uniform field)."""
+    d = geom.dx.shape[-1]
+    df = (f[geom.jsafe] - f[:, None]).reshape(geom.jsafe.shape + (-1,))                 # [N, K, c]
+    a = jnp.einsum("nmk,nkc->nmc", geom.coeffs, jnp.where(geom.mask[..., None], df, 0.0))
+    dP0 = jnp.asarray(basis.gradient_at_origin(degree, d), geom.h.dtype) / geom.h[:, None, None]
+    return jnp.einsum("nmd,nmc->ncd", dP0, a).reshape(f.shape + (d,))
 
 
 @jax.tree_util.register_dataclass
@@ -208,14 +230,45 @@ class BoundaryIntegralWalls:
             rows = (wflat.reshape(wflat.shape + (1,) * (v.ndim - 1)) * jnp.repeat(v, st.idx.shape[1], axis=0))
             return jnp.zeros((n,) + v.shape[1:], v.dtype).at[flat].add(rows)
 
-        B = scatter(Fb)
-        dvol = scatter(un)
-        if scheme.self_flux:
-            beta_n = scatter(bp.normal)                                            # sum_b dGamma N_i(x_b) n_b
-            B = B - ale_flux_dot(U, prim, w, beta_n, eos)
-            if scheme.diffusive:
-                B = B + jnp.einsum("nvd,nd->nv", particle_flux(prim, geom, scheme, params), beta_n)
-            dvol = dvol - jnp.sum(w * beta_n, axis=-1)
+        # F_h(x_b) . n_b = sum_j N_j(x_b) F_j . n_b: the particles' own total flux interpolated to
+        # the wall point (the flux that the symmetric pair sum of eq. 4.22 already carries to the
+        # wall; decision 54): B_i = sum_b dGamma_b N_i(x_b) [F_b - F_h/2 - (s - 1/2) F_i] . n_b
+        pick = lambda a: a[st.idx]  # noqa: E731
+        prim_j = Primitive(*(pick(getattr(prim, f.name)) for f in dataclasses.fields(Primitive)))
+        nb = jnp.broadcast_to(bp.normal[:, None, :], st.dx.shape)
+        Fj = ale_flux_dot(pick(U), prim_j, pick(w), nb, eos)                      # [Nb, K, nv]
+        if scheme.diffusive:
+            Dp = particle_flux(prim, geom, scheme, params)                        # [N, nv, d]
+            Fj = Fj - jnp.einsum("bkvd,bkd->bkv", pick(Dp), nb)
+        Fh = jnp.einsum("bk,bkv->bv", jnp.where(st.mask, vals, 0.0), Fj)
+        wh = jnp.einsum("bk,bkd,bd->b", jnp.where(st.mask, vals, 0.0), pick(w), bp.normal)
+        B = scatter(Fb - 0.5 * Fh)
+        dvol = scatter(un - 0.5 * wh)
+        beta_n = scatter(bp.normal)                                                # sum_b dGamma N_i(x_b) n_b
+        c = 0.5 - (1.0 if scheme.self_flux else 0.0)                               # 1/2 - s
+        Fi = ale_flux_dot(U, prim, w, beta_n, eos)
+        if scheme.diffusive:
+            Dn = jnp.einsum("nvd,nd->nv", Dp, beta_n)
+            Fi = Fi - Dn
+        B = B + c * Fi
+        dvol = dvol + c * jnp.sum(w * beta_n, axis=-1)
+        # first-moment correction of the rows near a wall (decision 54): the one-point pair areas
+        # of rows whose neighbours have truncated supports and the wall quadrature leave
+        # V_i E_i = sum_j dx_ij (x) A_ij / 2 + sum_b dGamma_b N_i(x_b) (x_b - x_i) (x) n_b / 2 - V_i I
+        # != 0, so a linear flux F gets the rate V_i (I + E_i) : grad F; subtracting
+        # V_i E_i : grad F_i (grad F_i from the particle's own fit, exact for linear F) makes the
+        # wall rows linearly consistent; it vanishes for a uniform state and in the interior.  Only
+        # with the self term: it is not a pair difference, and s = 0 is the conservative form
+        if not scheme.self_flux:
+            return B, dvol
+        VE = moment_defect(p, geom, st, weight, bp.normal)                        # [N, d, d]
+        Ft = jnp.stack([ale_flux_dot(U, prim, w, jnp.broadcast_to(e, w.shape), eos)
+                        for e in jnp.eye(d, dtype=w.dtype)], axis=-1)             # [N, nv, d]
+        if scheme.diffusive:
+            Ft = Ft - Dp
+        B = B - jnp.einsum("nac,nvca->nv", VE, fit_gradient(geom, Ft, scheme.fit_degree))
+        if not scheme.frame == "eulerian":
+            dvol = dvol - jnp.einsum("nac,nca->n", VE, fit_gradient(geom, w, scheme.fit_degree))
         return B, dvol
 
     def forces(self, p: Particles, params, scheme):
