@@ -35,9 +35,10 @@ Poiseuille profile is O(1) in the three rows next to a wall at every resolution)
 bounded errors converge at second order (docs/validation.md).
 
 Stencils: every stage, each x_b takes the ``capacity`` nearest non-ghost particles within the
-kernel support 2 h_b (a brute-force O(N_b N) distance pass; fine for 2D walls and bodies with
-N_b of a few hundred, a cell-list search is the next step for 3D surfaces).  The set-up sizes
-the capacity; a stencil that outgrows it, or a fluid particle beyond a wall (inside a body,
+kernel support 2 h_b, searched among the particles of the cells around x_b on a cell grid sized
+at set-up (:func:`mlsph_jax.neighbors.cell_candidates`, O((N + N_b) log N); the same stencils bit
+for bit as the brute-force O(N_b N) pass it replaced).  The set-up sizes the capacity and the
+grid; a stencil that outgrows it, or a fluid particle beyond a wall (inside a body,
 outside a container, past a segment within the support band), stops the run with
 ``Status.BOUNDARY_OVERFLOW`` / ``Status.WALL_CROSSED`` (checked on every committed step against
 the set-up geometry).  Nothing *guarantees* that Lagrangian or shifted particles stay in the
@@ -62,6 +63,7 @@ from .flux import ale_flux_dot
 from .geometry import Segment, check_geometry, curve_params, quadrature
 from .geometry.checks import beyond_segment, inside_polygon, outline
 from .kernels import get_kernel
+from .neighbors import NeighborSpec, cell_candidates, plan
 from .state import Kind, Params, Particles, minimum_image
 from .viscous import particle_flux, wall_flux
 
@@ -87,21 +89,47 @@ class WallStencils:
     count: jax.Array
 
 
-def wall_stencils(x, vol, kind, xb, *, beta: float, support: float, capacity: int, box=None) -> WallStencils:
+def wall_stencils(x, vol, kind, xb, *, beta: float, support: float, capacity: int, box=None,
+                  grid=None) -> WallStencils:
     """The ``capacity`` nearest non-ghost particles within ``support * h_b`` of each ``xb``
-    (brute force over all particles; ``box = (lengths, periodic)`` for minimum images)."""
+    (``box = (lengths, periodic)`` for minimum images).  ``grid``: a
+    :class:`~mlsph_jax.neighbors.NeighborSpec` whose cells are at least the largest support
+    radius: the candidates are the particles of the cells around x_b
+    (:func:`~mlsph_jax.neighbors.cell_candidates`, O((N + N_b) log N)); without it every particle
+    is a candidate (O(N_b N)).  Both give the same stencils bit for bit (candidates in ascending
+    index order, so ties in distance break alike); a cell-list search that cannot see the whole
+    support (a full cell, or support * h_b beyond the cell size) reports ``count`` = int32 max,
+    which the in-run check turns into ``Status.BOUNDARY_OVERFLOW``."""
     d = x.shape[1]
+    n = x.shape[0]
     L, per = box if box is not None else (None, None)
-    r = minimum_image(x[None, :, :] - xb[:, None, :], L, per)             # [Nb, N, d]
-    r2 = jnp.where((kind != Kind.GHOST)[None, :], jnp.sum(r * r, axis=-1), jnp.inf)
+    if grid is None:
+        cand = None
+        r = minimum_image(x[None, :, :] - xb[:, None, :], L, per)             # [Nb, N, d]
+        ok = jnp.broadcast_to((kind != Kind.GHOST)[None, :], r.shape[:2])
+    else:
+        cand, complete = cell_candidates(jax.lax.stop_gradient(xb), jax.lax.stop_gradient(x), grid)
+        safe = jnp.minimum(cand, n - 1)
+        r = minimum_image(x[safe] - xb[:, None, :], L, per)                   # [Nb, C, d]
+        ok = (cand < n) & (kind[safe] != Kind.GHOST)
+    r2 = jnp.where(ok, jnp.sum(r * r, axis=-1), jnp.inf)
     r2s = jax.lax.stop_gradient(r2)
     nearest = jnp.argmin(r2s, axis=1)
+    if cand is not None:
+        nearest = jnp.take_along_axis(safe, nearest[:, None], axis=1)[:, 0]
     h = beta * vol[nearest] ** (1.0 / d)
     within = r2s < jax.lax.stop_gradient(support * h)[:, None] ** 2
-    score, idx = jax.lax.top_k(jnp.where(within, -r2s, -jnp.inf), capacity)
+    score, slot = jax.lax.top_k(jnp.where(within, -r2s, -jnp.inf), capacity)
     mask = jnp.isfinite(score)
-    dx = jnp.take_along_axis(r, idx[..., None], axis=1)
-    return WallStencils(idx, mask, jnp.where(mask[..., None], dx, 0.0), h, jnp.sum(within, axis=1))
+    dx = jnp.take_along_axis(r, slot[..., None], axis=1)
+    count = jnp.sum(within, axis=1)
+    idx = slot
+    if cand is not None:
+        idx = jnp.take_along_axis(safe, slot, axis=1)
+        reach = jax.lax.stop_gradient(support * h) <= grid.cell_size
+        count = jnp.where(complete & reach, count, jnp.iinfo(jnp.int32).max)
+    idx = jnp.where(mask, idx, 0)                                             # padding: particle 0
+    return WallStencils(idx, mask, jnp.where(mask[..., None], dx, 0.0), h, count)
 
 
 def constrained_gradient(st: WallStencils, u, u_wall, kernel, degree: int):
@@ -159,6 +187,7 @@ class BoundaryIntegralWalls:
     band: float = dataclasses.field(metadata=dict(static=True))
     box: tuple | None = dataclasses.field(metadata=dict(static=True), default=None)
     n_walls: int = dataclasses.field(metadata=dict(static=True), default=0)
+    grid: NeighborSpec | None = dataclasses.field(metadata=dict(static=True), default=None)
 
     # -- the geometry ------------------------------------------------------------------------
     def default_params(self) -> dict:
@@ -182,7 +211,7 @@ class BoundaryIntegralWalls:
     def stencils(self, p: Particles, xb):
         kern = get_kernel(self.kernel)
         return wall_stencils(p.x, p.vol, p.kind, xb, beta=self.beta, support=kern.support,
-                             capacity=self.capacity, box=self._box())
+                             capacity=self.capacity, box=self._box(), grid=self.grid)
 
     def apply(self, p: Particles, params) -> Particles:
         """Nothing to regenerate (no ghosts)."""
@@ -387,6 +416,11 @@ class BoundaryIntegral:
                              f"{int(count[b])} particles within its support, the MLS fit of degree "
                              f"{max(scheme.degree, scheme.fit_degree)} needs more than {m}; allowed: a larger "
                              "scheme.beta or more particles near the walls")
+        # the cell grid of the stencil search: cells of the largest support radius with headroom
+        # (volumes of moving particles grow; a support beyond the cells stops the run loudly)
+        h_set = scheme.beta * np.asarray(p_fluid.vol) ** (1.0 / p_fluid.dim)
+        grid = plan(np.asarray(p_fluid.x), h_set, domain, support=kern.support, headroom=headroom,
+                    cell_size=kern.support * float(h_set.max()) * headroom)
         closed = [(np.asarray(outline(c, full)), c.fluid == "inside") for c in curves if c.closed]
         segs = [outline(c, full) for c in curves if not c.closed]
         obj = BoundaryIntegralWalls(
@@ -394,7 +428,8 @@ class BoundaryIntegral:
             segments=jnp.asarray(np.asarray(segs, float).reshape(-1, 2, 2)),
             curves=curves, no_slip=tuple(bool(s) for s in ns_flags),
             fluid_inside=tuple(ins for _, ins in closed), capacity=int(math.ceil(count.max() * headroom)),
-            beta=float(scheme.beta), kernel=scheme.kernel, band=float(band), box=box, n_walls=len(pairs))
+            beta=float(scheme.beta), kernel=scheme.kernel, band=float(band), box=box, n_walls=len(pairs),
+            grid=grid)
         return p_fluid, obj
 
 
