@@ -109,6 +109,8 @@ def wall_stencils(x, vol, kind, xb, *, beta: float, support: float, capacity: in
         ok = jnp.broadcast_to((kind != Kind.GHOST)[None, :], r.shape[:2])
     else:
         cand, complete = cell_candidates(jax.lax.stop_gradient(xb), jax.lax.stop_gradient(x), grid)
+        if cand.shape[1] < capacity:      # top_k needs at least ``capacity`` candidates
+            cand = jnp.pad(cand, ((0, 0), (0, capacity - cand.shape[1])), constant_values=n)
         safe = jnp.minimum(cand, n - 1)
         r = minimum_image(x[safe] - xb[:, None, :], L, per)                   # [Nb, C, d]
         ok = (cand < n) & (kind[safe] != Kind.GHOST)
@@ -147,26 +149,35 @@ def constrained_gradient(st: WallStencils, u, u_wall, kernel, degree: int):
     return jnp.einsum("mc,bma->bac", g0, coef) / st.h[:, None, None]
 
 
-def moment_defect(p: Particles, geom, st: WallStencils, weight, normal):
-    """``V_i E_i [N, d, d]``: the first-moment defect of the rows near a wall,
+#: Radius, in kernel supports of the wall point, within which particles get the first-moment
+#: correction (:meth:`BoundaryIntegralWalls.wall_terms`): a particle's defect comes from its own
+#: wall weights and from neighbours whose supports the wall truncates, so two supports and a margin.
+NEAR_SUPPORTS = 2.25
+
+
+def moment_defect(p: Particles, geom, st: WallStencils, weight, normal, rows):
+    """``V_i E_i [R, d, d]`` of the particles ``rows[R]`` (padding ``N``): the first-moment defect
     sum_j dx_ij (x) A_ij / 2 + sum_b dGamma_b N_i(x_b) (x_b - x_i) (x) n_b / 2 - V_i I
     (zero to round-off in the interior of a lattice; ``weight[Nb, K]`` = dGamma_b N_j(x_b))."""
     n, d = p.x.shape
-    pairs = 0.5 * jnp.einsum("nk,nka,nkc->nac", geom.pair_mask, geom.dx, geom.A)
+    r = jnp.minimum(rows, n - 1)
+    pairs = 0.5 * jnp.einsum("nk,nka,nkc->nac", geom.pair_mask[r], geom.dx[r], geom.A[r])
     wall = jnp.einsum("bk,bka,bc->bkac", jnp.where(st.mask, weight, 0.0), -st.dx, normal)
     wall = jnp.zeros((n, d, d), pairs.dtype).at[st.idx.reshape(-1)].add(0.5 * wall.reshape(-1, d, d))
-    return pairs + wall - p.vol[:, None, None] * jnp.eye(d, dtype=pairs.dtype)
+    return pairs + wall[r] - p.vol[r, None, None] * jnp.eye(d, dtype=pairs.dtype)
 
 
-def fit_gradient(geom, f, degree: int):
-    """Gradient ``[N, ..., d]`` at every particle of the fields ``f[N, ...]`` from the particle's own
-    fixed-centre fit (``geom.coeffs``, degree ``degree``), applied to f_j - f_i (exactly zero for a
-    uniform field)."""
+def fit_gradient(geom, f, degree: int, rows):
+    """Gradient ``[R, ..., d]`` at the particles ``rows[R]`` (padding ``N``) of the fields
+    ``f[N, ...]`` from each particle's own fixed-centre fit (``geom.coeffs``, degree ``degree``),
+    applied to f_j - f_i (exactly zero for a uniform field)."""
     d = geom.dx.shape[-1]
-    df = (f[geom.jsafe] - f[:, None]).reshape(geom.jsafe.shape + (-1,))                 # [N, K, c]
-    a = jnp.einsum("nmk,nkc->nmc", geom.coeffs, jnp.where(geom.mask[..., None], df, 0.0))
-    dP0 = jnp.asarray(basis.gradient_at_origin(degree, d), geom.h.dtype) / geom.h[:, None, None]
-    return jnp.einsum("nmd,nmc->ncd", dP0, a).reshape(f.shape + (d,))
+    r = jnp.minimum(rows, f.shape[0] - 1)
+    js = geom.jsafe[r]
+    df = (f[js] - f[r][:, None]).reshape(js.shape + (-1,))                              # [R, K, c]
+    a = jnp.einsum("nmk,nkc->nmc", geom.coeffs[r], jnp.where(geom.mask[r][..., None], df, 0.0))
+    dP0 = jnp.asarray(basis.gradient_at_origin(degree, d), geom.h.dtype) / geom.h[r][:, None, None]
+    return jnp.einsum("nmd,nmc->ncd", dP0, a).reshape((r.shape[0],) + f.shape[1:] + (d,))
 
 
 @jax.tree_util.register_dataclass
@@ -188,6 +199,9 @@ class BoundaryIntegralWalls:
     box: tuple | None = dataclasses.field(metadata=dict(static=True), default=None)
     n_walls: int = dataclasses.field(metadata=dict(static=True), default=0)
     grid: NeighborSpec | None = dataclasses.field(metadata=dict(static=True), default=None)
+    near_grid: NeighborSpec | None = dataclasses.field(metadata=dict(static=True), default=None)
+    near_capacity: int = dataclasses.field(metadata=dict(static=True), default=0)
+    n_rows: int = dataclasses.field(metadata=dict(static=True), default=0)
 
     # -- the geometry ------------------------------------------------------------------------
     def default_params(self) -> dict:
@@ -212,6 +226,20 @@ class BoundaryIntegralWalls:
         kern = get_kernel(self.kernel)
         return wall_stencils(p.x, p.vol, p.kind, xb, beta=self.beta, support=kern.support,
                              capacity=self.capacity, box=self._box(), grid=self.grid)
+
+    def near_rows(self, p: Particles, xb):
+        """``(rows[n_rows], overflow)``: the particles within :data:`NEAR_SUPPORTS` supports of a
+        wall point, ascending, padded with N (the rows that get the first-moment correction);
+        ``overflow`` when a point sees more than ``near_capacity`` of them or they outnumber
+        ``n_rows``."""
+        kern = get_kernel(self.kernel)
+        st = wall_stencils(p.x, p.vol, p.kind, xb, beta=self.beta, support=NEAR_SUPPORTS * kern.support,
+                           capacity=self.near_capacity, box=self._box(), grid=self.near_grid)
+        n = p.x.shape[0]
+        flat = jnp.sort(jnp.where(st.mask, st.idx, n).reshape(-1))
+        distinct = jnp.sum((flat < n) & jnp.concatenate([jnp.ones(1, bool), flat[1:] != flat[:-1]]))
+        rows = jnp.unique(flat, size=self.n_rows, fill_value=n)
+        return rows, (distinct > self.n_rows) | jnp.any(st.count > self.near_capacity)
 
     def apply(self, p: Particles, params) -> Particles:
         """Nothing to regenerate (no ghosts)."""
@@ -290,14 +318,17 @@ class BoundaryIntegralWalls:
         # with the self term: it is not a pair difference, and s = 0 is the conservative form
         if not scheme.self_flux:
             return B, dvol
-        VE = moment_defect(p, geom, st, weight, bp.normal)                        # [N, d, d]
+        rows, _ = self.near_rows(p, bp.x)
+        VE = moment_defect(p, geom, st, weight, bp.normal, rows)                  # [R, d, d]
         Ft = jnp.stack([ale_flux_dot(U, prim, w, jnp.broadcast_to(e, w.shape), eos)
                         for e in jnp.eye(d, dtype=w.dtype)], axis=-1)             # [N, nv, d]
         if scheme.diffusive:
             Ft = Ft - Dp
-        B = B - jnp.einsum("nac,nvca->nv", VE, fit_gradient(geom, Ft, scheme.fit_degree))
+        corr = jnp.einsum("nac,nvca->nv", VE, fit_gradient(geom, Ft, scheme.fit_degree, rows))
+        B = B.at[rows].add(-corr, mode="drop")
         if not scheme.frame == "eulerian":
-            dvol = dvol - jnp.einsum("nac,nca->n", VE, fit_gradient(geom, w, scheme.fit_degree))
+            cv = jnp.einsum("nac,nca->n", VE, fit_gradient(geom, w, scheme.fit_degree, rows))
+            dvol = dvol.at[rows].add(-cv, mode="drop")
         return B, dvol
 
     def forces(self, p: Particles, params, scheme):
@@ -332,7 +363,8 @@ class BoundaryIntegralWalls:
     # -- the in-run checks -------------------------------------------------------------------
     def band_status(self, p: Particles):
         """``(bits, particle)``: WALL_CROSSED for a fluid particle beyond a wall of the set-up
-        geometry, BOUNDARY_OVERFLOW for a wall stencil with more than ``capacity`` particles."""
+        geometry, BOUNDARY_OVERFLOW for a wall stencil with more than ``capacity`` particles (or
+        more particles near the walls than the correction rows hold)."""
         from .status import Status
 
         p = jax.lax.stop_gradient(p)
@@ -344,8 +376,9 @@ class BoundaryIntegralWalls:
         for s in range(self.segments.shape[0]):
             crossed = crossed | beyond_segment(p.x, self.segments[s, 0], self.segments[s, 1], self.band, jnp)
         crossed = crossed & fluid
-        st = self.stencils(p, self.points({}).x)
-        over = jnp.any(st.count > self.capacity)
+        xb = self.points({}).x
+        st = self.stencils(p, xb)
+        over = jnp.any(st.count > self.capacity) | self.near_rows(p, xb)[1]
         hit = jnp.any(crossed)
         bits = (jnp.where(hit, jnp.int32(Status.WALL_CROSSED), 0)
                 | jnp.where(over, jnp.int32(Status.BOUNDARY_OVERFLOW), 0)).astype(jnp.int32)
@@ -421,6 +454,14 @@ class BoundaryIntegral:
         h_set = scheme.beta * np.asarray(p_fluid.vol) ** (1.0 / p_fluid.dim)
         grid = plan(np.asarray(p_fluid.x), h_set, domain, support=kern.support, headroom=headroom,
                     cell_size=kern.support * float(h_set.max()) * headroom)
+        near_grid = plan(np.asarray(p_fluid.x), h_set, domain, support=NEAR_SUPPORTS * kern.support,
+                         headroom=headroom, cell_size=NEAR_SUPPORTS * kern.support * float(h_set.max()) * headroom)
+        near = wall_stencils(p_fluid.x, p_fluid.vol, p_fluid.kind, xb, beta=scheme.beta,
+                             support=NEAR_SUPPORTS * kern.support, capacity=p_fluid.n,
+                             box=None if box is None else tuple(map(jnp.asarray, box)))
+        near_capacity = min(p_fluid.n, int(math.ceil(int(jnp.max(near.count)) * headroom)))
+        n_near = np.unique(np.asarray(near.idx)[np.asarray(near.mask)]).size
+        n_rows = min(p_fluid.n, int(math.ceil(n_near * headroom)))
         closed = [(np.asarray(outline(c, full)), c.fluid == "inside") for c in curves if c.closed]
         segs = [outline(c, full) for c in curves if not c.closed]
         obj = BoundaryIntegralWalls(
@@ -429,7 +470,7 @@ class BoundaryIntegral:
             curves=curves, no_slip=tuple(bool(s) for s in ns_flags),
             fluid_inside=tuple(ins for _, ins in closed), capacity=int(math.ceil(count.max() * headroom)),
             beta=float(scheme.beta), kernel=scheme.kernel, band=float(band), box=box, n_walls=len(pairs),
-            grid=grid)
+            grid=grid, near_grid=near_grid, near_capacity=near_capacity, n_rows=n_rows)
         return p_fluid, obj
 
 
