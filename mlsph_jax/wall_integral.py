@@ -2,12 +2,15 @@
 
 Thesis eq. 4.24 carries, for every pair, the boundary term
 B_ij = int_dOmega N_i N_j n dGamma.  With quadrature points x_b, lengths dGamma_b and normals n_b
-out of the fluid (:mod:`mlsph_jax.geometry`), B_ij ~ sum_b N_i(x_b) N_j(x_b) n_b dGamma_b, and
-replacing the pair average of the fluxes at x_b by the wall flux F_b (partition of unity,
-sum_j N_j(x_b) = 1) gives the term added to the left-hand side of eq. 4.36 (SPEC §5.8)
+out of the fluid (:mod:`mlsph_jax.geometry`), B_ij ~ sum_b N_i(x_b) N_j(x_b) n_b dGamma_b.  Eq. 4.22
+averages the integrated-by-parts form 4.20 (which holds the boundary integral, where the wall
+flux F_b enters) with the plain form 4.19, so the term added to the left-hand side of eq. 4.36
+(SPEC §5.8; docs/architecture.md decisions 54 and 58) is
 
-    B_i = sum_b dGamma_b N_i(x_b) [F_b - s F_i] . n_b,        s = ``scheme.self_flux``,
+    B_i = sum_b dGamma_b N_i(x_b) [F_b - F_h(x_b)/2 - (s - 1/2) F_i] . n_b,   s = ``scheme.self_flux``,
 
+F_h(x_b) = sum_j N_j(x_b) F_j the particles' own flux at the wall point (for s = 1: half the
+jump to the wall flux from eq. 4.22's [(F_j + F_i)/2 - F_i] . B_ij, the other half from 4.20),
 with F = F_w - D the total (ALE convective minus diffusive) flux, N_i(x_b) the MLS shape
 function of particle i evaluated at x_b over the particles around x_b (linear,
 :data:`WALL_STATE_DEGREE`; smoothing length h_b = beta V^(1/d) of the particle nearest to x_b),
@@ -25,14 +28,17 @@ and
 * free-slip walls: tau_b = 0.
 
 The volume of moving particles follows the same rule (thesis eq. 4.32 with the boundary term,
-the FVPM form T(5.67)): dV_i/dt += sum_b dGamma_b N_i(x_b) (u_w - s' w_i) . n_b.  Summed over
-the particles, with s = 0 the boundary terms give exactly the wall fluxes sum_b F_b . n_b
-dGamma_b (no mass crosses a wall, to round-off); with s = 1 they cancel the interior self terms
--F_i . sum_j A_ij = F_i . sum_j V_j grad N_i(x_j) ~ F_i . int_dOmega N_i n up to the quadrature
-defect of SPEC §5.5, and a uniform state on the walls' own velocity stays uniform exactly.
-Known limit: the wall rows are not linearly consistent (the residual of an exact steady
-Poiseuille profile is O(1) in the three rows next to a wall at every resolution), so wall-
-bounded errors converge at second order (docs/validation.md).
+the FVPM form T(5.67)): dV_i/dt += sum_b dGamma_b N_i(x_b) (u_w - w_h(x_b)/2 - (s - 1/2) w_i) . n_b.
+Summed over the particles, with s = 0 the boundary terms give exactly the wall fluxes
+sum_b F_b . n_b dGamma_b (sum_i N_i(x_b) F_i = F_h(x_b); no mass crosses a wall, to round-off);
+with s = 1 a uniform state on the walls' own velocity stays uniform exactly.
+
+Linear consistency (s = 1, decision 58): the one-point pair areas of the rows whose neighbours'
+supports the wall truncates, with the wall quadrature, give a linear flux F the rate
+G : V_i (I + E_i) instead of G : V_i I (E_i = O(1), the same at every resolution).  The rows within
+:data:`NEAR_SUPPORTS` supports of a wall point therefore get -V_i E_i : grad F_i (and
+-V_i E_i : grad w_i in dV_i/dt), grad from the particle's own fit: the exact steady Poiseuille
+state has a round-off residual in every row.
 
 Stencils: every stage, each x_b takes the ``capacity`` nearest non-ghost particles within the
 kernel support 2 h_b, searched among the particles of the cells around x_b on a cell grid sized
