@@ -463,8 +463,9 @@ class BoundaryIntegral:
         near_grid = plan(np.asarray(p_fluid.x), h_set, domain, support=NEAR_SUPPORTS * kern.support,
                          headroom=headroom, cell_size=NEAR_SUPPORTS * kern.support * float(h_set.max()) * headroom)
         near = wall_stencils(p_fluid.x, p_fluid.vol, p_fluid.kind, xb, beta=scheme.beta,
-                             support=NEAR_SUPPORTS * kern.support, capacity=p_fluid.n,
-                             box=None if box is None else tuple(map(jnp.asarray, box)))
+                             support=NEAR_SUPPORTS * kern.support,
+                             capacity=min(p_fluid.n, 3 ** p_fluid.dim * near_grid.cell_capacity),
+                             box=None if box is None else tuple(map(jnp.asarray, box)), grid=near_grid)
         near_capacity = min(p_fluid.n, int(math.ceil(int(jnp.max(near.count)) * headroom)))
         n_near = np.unique(np.asarray(near.idx)[np.asarray(near.mask)]).size
         n_rows = min(p_fluid.n, int(math.ceil(n_near * headroom)))
