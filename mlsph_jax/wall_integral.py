@@ -321,8 +321,9 @@ class BoundaryIntegralWalls:
         # != 0, so a linear flux F gets the rate V_i (I + E_i) : grad F; subtracting
         # V_i E_i : grad F_i (grad F_i from the particle's own fit, exact for linear F) makes the
         # wall rows linearly consistent; it vanishes for a uniform state and in the interior.  Only
-        # with the self term: it is not a pair difference, and s = 0 is the conservative form
-        if not scheme.self_flux:
+        # with the self term: it is not a pair difference, and s = 0 is the conservative form; and
+        # only with a fit (first-order schemes without one are not linearly consistent anyway)
+        if not scheme.self_flux or geom.coeffs is None:
             return B, dvol
         rows, _ = self.near_rows(p, bp.x)
         VE = moment_defect(p, geom, st, weight, bp.normal, rows)                  # [R, d, d]
