@@ -8,7 +8,8 @@ For each spacing the geometry is computed once (not timed), then
 * ``rhs``:  ``rhs(p, params, geom, scheme)`` without walls (the interior sweep alone);
 * ``rhs+walls``: the same with the boundary-integral walls (stencil search, wall state,
   constrained wall fit, scatter);
-* ``walls``: ``wall_terms`` alone;
+* ``walls``: ``wall_terms`` alone (cell-list stencil search);
+* ``walls_brute``: the same with the O(N_b N) brute-force stencil search (``grid=None``);
 
 each compiled ahead of time (compile time reported) and timed as the best of ``--repeat`` runs
 interleaved (A, B, C, A, B, C, ...) so machine load affects all alike; the load average is
@@ -23,6 +24,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -70,13 +72,15 @@ def variants(walls, scheme) -> dict:
     """The three timed functions of (particles, params, geometry)."""
     eos = get_eos(scheme.eos)
 
-    def wall_only(p, params, geom):
-        U = p.q / p.vol[:, None]
-        return walls.wall_terms(p, params, geom, scheme, U, to_primitive(U, eos, params), jnp.zeros_like(p.x))
+    def wall_only(w):
+        def f(p, params, geom):
+            U = p.q / p.vol[:, None]
+            return w.wall_terms(p, params, geom, scheme, U, to_primitive(U, eos, params), jnp.zeros_like(p.x))
+        return f
 
     return {"rhs": lambda p, params, geom: rhs(p, params, geom, scheme),
             "rhs+walls": lambda p, params, geom: rhs(p, params, geom, scheme, walls),
-            "walls": wall_only}
+            "walls": wall_only(walls), "walls_brute": wall_only(dataclasses.replace(walls, grid=None))}
 
 
 def main(argv=None):
@@ -104,11 +108,13 @@ def main(argv=None):
         row = {"dx": dx, "n_particles": p.n, "n_wall_points": walls.curves[0].n_points,
                "capacity": walls.capacity, "best_s": best, "compile_s": compile_s,
                "particle_updates_per_s": {k: p.n / v for k, v in best.items()},
-               "wall_cost_ratio": best["walls"] / best["rhs"], "load_average": load}
+               "wall_cost_ratio": best["walls"] / best["rhs"],
+               "wall_brute_cost_ratio": best["walls_brute"] / best["rhs"], "load_average": load}
         rows.append(row)
         print(f"dx={dx:g} N={p.n} Nb={row['n_wall_points']} K_b={walls.capacity}: rhs {best['rhs'] * 1e3:.2f} ms, "
               f"rhs+walls {best['rhs+walls'] * 1e3:.2f} ms, walls {best['walls'] * 1e3:.2f} ms "
-              f"({row['wall_cost_ratio']:.2f} of rhs); {p.n / best['rhs+walls']:.3g} particle updates/s; "
+              f"({row['wall_cost_ratio']:.2f} of rhs), brute-force stencils {best['walls_brute'] * 1e3:.2f} ms "
+              f"({row['wall_brute_cost_ratio']:.2f}); {p.n / best['rhs+walls']:.3g} particle updates/s; "
               f"compile rhs+walls {compile_s['rhs+walls']:.1f} s; load {load:.1f}"
               + (" (contended)" if load > 2.5 else ""))
     out = pathlib.Path(__file__).parent / "output"

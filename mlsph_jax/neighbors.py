@@ -452,6 +452,33 @@ def update(x: jax.Array, h: jax.Array, spec: NeighborSpec) -> NeighborList:
 update_jit = jax.jit(update, static_argnames="spec")
 
 
+def cell_candidates(points: jax.Array, x: jax.Array, spec: NeighborSpec) -> tuple[jax.Array, jax.Array]:
+    """Particles in the cells around query points (walls, probes): ``(cand[Nb, n_off * C],
+    complete[Nb])``.
+
+    ``cand[b]`` lists, ascending and padded with ``N``, every particle of ``x[N, d]`` in the
+    (de-duplicated, periodic-wrapped) ``3**d`` cells around ``points[b]`` on the grid of ``spec``
+    (``C = spec.cell_capacity``; ``spec.capacity`` is not used).  Every particle within
+    ``spec.cell_size`` of a point is among its candidates as long as ``complete[b]`` (no visited
+    cell holds more than ``C`` particles).  Jit-able with ``spec`` static; O((N + Nb) log N).
+    """
+    g = _geometry(spec)
+    n = x.shape[0]
+    C = spec.cell_capacity
+    ids = _linear_ids(_cell_coords(x, g, jnp), g, jnp)
+    order = jnp.argsort(ids, stable=True).astype(jnp.int32)
+    sorted_ids = ids[order]
+    js = jnp.concatenate([order, jnp.full(C, n, jnp.int32)])
+    nid = _linear_ids(_cell_coords(points, g, jnp)[:, None, :] + g["offsets"], g, jnp)   # [Nb, n_off]
+    start = jnp.searchsorted(sorted_ids, nid, side="left").astype(jnp.int32)
+    end = jnp.searchsorted(sorted_ids, nid, side="right").astype(jnp.int32)
+    cnt = jnp.where(nid >= 0, end - start, 0)
+    slot = jnp.arange(C, dtype=jnp.int32)
+    cand = jnp.where(slot < cnt[..., None], js[start[..., None] + slot], n)             # [Nb, n_off, C]
+    return jnp.sort(cand.reshape(cand.shape[0], -1), axis=-1), jnp.all(cnt <= C, axis=-1)
+
+
+
 # --------------------------------------------------------------------------------------------
 # host side: validation, sizing, regrowth
 # --------------------------------------------------------------------------------------------

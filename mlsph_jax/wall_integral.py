@@ -2,12 +2,15 @@
 
 Thesis eq. 4.24 carries, for every pair, the boundary term
 B_ij = int_dOmega N_i N_j n dGamma.  With quadrature points x_b, lengths dGamma_b and normals n_b
-out of the fluid (:mod:`mlsph_jax.geometry`), B_ij ~ sum_b N_i(x_b) N_j(x_b) n_b dGamma_b, and
-replacing the pair average of the fluxes at x_b by the wall flux F_b (partition of unity,
-sum_j N_j(x_b) = 1) gives the term added to the left-hand side of eq. 4.36 (SPEC §5.8)
+out of the fluid (:mod:`mlsph_jax.geometry`), B_ij ~ sum_b N_i(x_b) N_j(x_b) n_b dGamma_b.  Eq. 4.22
+averages the integrated-by-parts form 4.20 (which holds the boundary integral, where the wall
+flux F_b enters) with the plain form 4.19, so the term added to the left-hand side of eq. 4.36
+(SPEC §5.8; docs/architecture.md decisions 54 and 58) is
 
-    B_i = sum_b dGamma_b N_i(x_b) [F_b - s F_i] . n_b,        s = ``scheme.self_flux``,
+    B_i = sum_b dGamma_b N_i(x_b) [F_b - F_h(x_b)/2 - (s - 1/2) F_i] . n_b,   s = ``scheme.self_flux``,
 
+F_h(x_b) = sum_j N_j(x_b) F_j the particles' own flux at the wall point (for s = 1: half the
+jump to the wall flux from eq. 4.22's [(F_j + F_i)/2 - F_i] . B_ij, the other half from 4.20),
 with F = F_w - D the total (ALE convective minus diffusive) flux, N_i(x_b) the MLS shape
 function of particle i evaluated at x_b over the particles around x_b (linear,
 :data:`WALL_STATE_DEGREE`; smoothing length h_b = beta V^(1/d) of the particle nearest to x_b),
@@ -25,19 +28,23 @@ and
 * free-slip walls: tau_b = 0.
 
 The volume of moving particles follows the same rule (thesis eq. 4.32 with the boundary term,
-the FVPM form T(5.67)): dV_i/dt += sum_b dGamma_b N_i(x_b) (u_w - s' w_i) . n_b.  Summed over
-the particles, with s = 0 the boundary terms give exactly the wall fluxes sum_b F_b . n_b
-dGamma_b (no mass crosses a wall, to round-off); with s = 1 they cancel the interior self terms
--F_i . sum_j A_ij = F_i . sum_j V_j grad N_i(x_j) ~ F_i . int_dOmega N_i n up to the quadrature
-defect of SPEC §5.5, and a uniform state on the walls' own velocity stays uniform exactly.
-Known limit: the wall rows are not linearly consistent (the residual of an exact steady
-Poiseuille profile is O(1) in the three rows next to a wall at every resolution), so wall-
-bounded errors converge at second order (docs/validation.md).
+the FVPM form T(5.67)): dV_i/dt += sum_b dGamma_b N_i(x_b) (u_w - w_h(x_b)/2 - (s - 1/2) w_i) . n_b.
+Summed over the particles, with s = 0 the boundary terms give exactly the wall fluxes
+sum_b F_b . n_b dGamma_b (sum_i N_i(x_b) F_i = F_h(x_b); no mass crosses a wall, to round-off);
+with s = 1 a uniform state on the walls' own velocity stays uniform exactly.
+
+Linear consistency (s = 1, decision 60): the one-point pair areas of the rows whose neighbours'
+supports the wall truncates, with the wall quadrature, give a linear flux F the rate
+G : V_i (I + E_i) instead of G : V_i I (E_i = O(1), the same at every resolution).  The rows within
+:data:`NEAR_SUPPORTS` supports of a wall point therefore get -V_i E_i : grad F_i (and
+-V_i E_i : grad w_i in dV_i/dt), grad from the particle's own fit: the exact steady Poiseuille
+state has a round-off residual in every row.
 
 Stencils: every stage, each x_b takes the ``capacity`` nearest non-ghost particles within the
-kernel support 2 h_b (a brute-force O(N_b N) distance pass; fine for 2D walls and bodies with
-N_b of a few hundred, a cell-list search is the next step for 3D surfaces).  The set-up sizes
-the capacity; a stencil that outgrows it, or a fluid particle beyond a wall (inside a body,
+kernel support 2 h_b, searched among the particles of the cells around x_b on a cell grid sized
+at set-up (:func:`mlsph_jax.neighbors.cell_candidates`, O((N + N_b) log N); the same stencils bit
+for bit as the brute-force O(N_b N) pass it replaced).  The set-up sizes the capacity and the
+grid; a stencil that outgrows it, or a fluid particle beyond a wall (inside a body,
 outside a container, past a segment within the support band), stops the run with
 ``Status.BOUNDARY_OVERFLOW`` / ``Status.WALL_CROSSED`` (checked on every committed step against
 the set-up geometry).  Nothing *guarantees* that Lagrangian or shifted particles stay in the
@@ -56,12 +63,13 @@ import numpy as np
 
 from .approximation import basis, mls
 from .boundaries import BOUNDARIES
-from .eos import get_eos
+from .eos import Primitive, get_eos
 from .errors import InputError
 from .flux import ale_flux_dot
 from .geometry import Segment, check_geometry, curve_params, quadrature
 from .geometry.checks import beyond_segment, inside_polygon, outline
 from .kernels import get_kernel
+from .neighbors import NeighborSpec, cell_candidates, plan
 from .state import Kind, Params, Particles, minimum_image
 from .viscous import particle_flux, wall_flux
 
@@ -87,21 +95,49 @@ class WallStencils:
     count: jax.Array
 
 
-def wall_stencils(x, vol, kind, xb, *, beta: float, support: float, capacity: int, box=None) -> WallStencils:
+def wall_stencils(x, vol, kind, xb, *, beta: float, support: float, capacity: int, box=None,
+                  grid=None) -> WallStencils:
     """The ``capacity`` nearest non-ghost particles within ``support * h_b`` of each ``xb``
-    (brute force over all particles; ``box = (lengths, periodic)`` for minimum images)."""
+    (``box = (lengths, periodic)`` for minimum images).  ``grid``: a
+    :class:`~mlsph_jax.neighbors.NeighborSpec` whose cells are at least the largest support
+    radius: the candidates are the particles of the cells around x_b
+    (:func:`~mlsph_jax.neighbors.cell_candidates`, O((N + N_b) log N)); without it every particle
+    is a candidate (O(N_b N)).  Both give the same stencils bit for bit (candidates in ascending
+    index order, so ties in distance break alike); a cell-list search that cannot see the whole
+    support (a full cell, or support * h_b beyond the cell size) reports ``count`` = int32 max,
+    which the in-run check turns into ``Status.BOUNDARY_OVERFLOW``."""
     d = x.shape[1]
+    n = x.shape[0]
     L, per = box if box is not None else (None, None)
-    r = minimum_image(x[None, :, :] - xb[:, None, :], L, per)             # [Nb, N, d]
-    r2 = jnp.where((kind != Kind.GHOST)[None, :], jnp.sum(r * r, axis=-1), jnp.inf)
+    if grid is None:
+        cand = None
+        r = minimum_image(x[None, :, :] - xb[:, None, :], L, per)             # [Nb, N, d]
+        ok = jnp.broadcast_to((kind != Kind.GHOST)[None, :], r.shape[:2])
+    else:
+        cand, complete = cell_candidates(jax.lax.stop_gradient(xb), jax.lax.stop_gradient(x), grid)
+        if cand.shape[1] < capacity:      # top_k needs at least ``capacity`` candidates
+            cand = jnp.pad(cand, ((0, 0), (0, capacity - cand.shape[1])), constant_values=n)
+        safe = jnp.minimum(cand, n - 1)
+        r = minimum_image(x[safe] - xb[:, None, :], L, per)                   # [Nb, C, d]
+        ok = (cand < n) & (kind[safe] != Kind.GHOST)
+    r2 = jnp.where(ok, jnp.sum(r * r, axis=-1), jnp.inf)
     r2s = jax.lax.stop_gradient(r2)
     nearest = jnp.argmin(r2s, axis=1)
+    if cand is not None:
+        nearest = jnp.take_along_axis(safe, nearest[:, None], axis=1)[:, 0]
     h = beta * vol[nearest] ** (1.0 / d)
     within = r2s < jax.lax.stop_gradient(support * h)[:, None] ** 2
-    score, idx = jax.lax.top_k(jnp.where(within, -r2s, -jnp.inf), capacity)
+    score, slot = jax.lax.top_k(jnp.where(within, -r2s, -jnp.inf), capacity)
     mask = jnp.isfinite(score)
-    dx = jnp.take_along_axis(r, idx[..., None], axis=1)
-    return WallStencils(idx, mask, jnp.where(mask[..., None], dx, 0.0), h, jnp.sum(within, axis=1))
+    dx = jnp.take_along_axis(r, slot[..., None], axis=1)
+    count = jnp.sum(within, axis=1)
+    idx = slot
+    if cand is not None:
+        idx = jnp.take_along_axis(safe, slot, axis=1)
+        reach = jax.lax.stop_gradient(support * h) <= grid.cell_size
+        count = jnp.where(complete & reach, count, jnp.iinfo(jnp.int32).max)
+    idx = jnp.where(mask, idx, 0)                                             # padding: particle 0
+    return WallStencils(idx, mask, jnp.where(mask[..., None], dx, 0.0), h, count)
 
 
 def constrained_gradient(st: WallStencils, u, u_wall, kernel, degree: int):
@@ -117,6 +153,37 @@ def constrained_gradient(st: WallStencils, u, u_wall, kernel, degree: int):
     coef = jnp.linalg.solve(M, rhs)                                           # [Nb, m-1, d]
     g0 = jnp.asarray(basis.gradient_at_origin(degree, d)[1:], st.h.dtype)     # [m-1, d]
     return jnp.einsum("mc,bma->bac", g0, coef) / st.h[:, None, None]
+
+
+#: Radius, in kernel supports of the wall point, within which particles get the first-moment
+#: correction (:meth:`BoundaryIntegralWalls.wall_terms`): a particle's defect comes from its own
+#: wall weights and from neighbours whose supports the wall truncates, so two supports and a margin.
+NEAR_SUPPORTS = 2.25
+
+
+def moment_defect(p: Particles, geom, st: WallStencils, weight, normal, rows):
+    """``V_i E_i [R, d, d]`` of the particles ``rows[R]`` (padding ``N``): the first-moment defect
+    sum_j dx_ij (x) A_ij / 2 + sum_b dGamma_b N_i(x_b) (x_b - x_i) (x) n_b / 2 - V_i I
+    (zero to round-off in the interior of a lattice; ``weight[Nb, K]`` = dGamma_b N_j(x_b))."""
+    n, d = p.x.shape
+    r = jnp.minimum(rows, n - 1)
+    pairs = 0.5 * jnp.einsum("nk,nka,nkc->nac", geom.pair_mask[r], geom.dx[r], geom.A[r])
+    wall = jnp.einsum("bk,bka,bc->bkac", jnp.where(st.mask, weight, 0.0), -st.dx, normal)
+    wall = jnp.zeros((n, d, d), pairs.dtype).at[st.idx.reshape(-1)].add(0.5 * wall.reshape(-1, d, d))
+    return pairs + wall[r] - p.vol[r, None, None] * jnp.eye(d, dtype=pairs.dtype)
+
+
+def fit_gradient(geom, f, degree: int, rows):
+    """Gradient ``[R, ..., d]`` at the particles ``rows[R]`` (padding ``N``) of the fields
+    ``f[N, ...]`` from each particle's own fixed-centre fit (``geom.coeffs``, degree ``degree``),
+    applied to f_j - f_i (exactly zero for a uniform field)."""
+    d = geom.dx.shape[-1]
+    r = jnp.minimum(rows, f.shape[0] - 1)
+    js = geom.jsafe[r]
+    df = (f[js] - f[r][:, None]).reshape(js.shape + (-1,))                              # [R, K, c]
+    a = jnp.einsum("nmk,nkc->nmc", geom.coeffs[r], jnp.where(geom.mask[r][..., None], df, 0.0))
+    dP0 = jnp.asarray(basis.gradient_at_origin(degree, d), geom.h.dtype) / geom.h[r][:, None, None]
+    return jnp.einsum("nmd,nmc->ncd", dP0, a).reshape((r.shape[0],) + f.shape[1:] + (d,))
 
 
 @jax.tree_util.register_dataclass
@@ -137,6 +204,10 @@ class BoundaryIntegralWalls:
     band: float = dataclasses.field(metadata=dict(static=True))
     box: tuple | None = dataclasses.field(metadata=dict(static=True), default=None)
     n_walls: int = dataclasses.field(metadata=dict(static=True), default=0)
+    grid: NeighborSpec | None = dataclasses.field(metadata=dict(static=True), default=None)
+    near_grid: NeighborSpec | None = dataclasses.field(metadata=dict(static=True), default=None)
+    near_capacity: int = dataclasses.field(metadata=dict(static=True), default=0)
+    n_rows: int = dataclasses.field(metadata=dict(static=True), default=0)
 
     # -- the geometry ------------------------------------------------------------------------
     def default_params(self) -> dict:
@@ -160,7 +231,21 @@ class BoundaryIntegralWalls:
     def stencils(self, p: Particles, xb):
         kern = get_kernel(self.kernel)
         return wall_stencils(p.x, p.vol, p.kind, xb, beta=self.beta, support=kern.support,
-                             capacity=self.capacity, box=self._box())
+                             capacity=self.capacity, box=self._box(), grid=self.grid)
+
+    def near_rows(self, p: Particles, xb):
+        """``(rows[n_rows], overflow)``: the particles within :data:`NEAR_SUPPORTS` supports of a
+        wall point, ascending, padded with N (the rows that get the first-moment correction);
+        ``overflow`` when a point sees more than ``near_capacity`` of them or they outnumber
+        ``n_rows``."""
+        kern = get_kernel(self.kernel)
+        st = wall_stencils(p.x, p.vol, p.kind, xb, beta=self.beta, support=NEAR_SUPPORTS * kern.support,
+                           capacity=self.near_capacity, box=self._box(), grid=self.near_grid)
+        n = p.x.shape[0]
+        flat = jnp.sort(jnp.where(st.mask, st.idx, n).reshape(-1))
+        distinct = jnp.sum((flat < n) & jnp.concatenate([jnp.ones(1, bool), flat[1:] != flat[:-1]]))
+        rows = jnp.unique(flat, size=self.n_rows, fill_value=n)
+        return rows, (distinct > self.n_rows) | jnp.any(st.count > self.near_capacity)
 
     def apply(self, p: Particles, params) -> Particles:
         """Nothing to regenerate (no ghosts)."""
@@ -208,14 +293,49 @@ class BoundaryIntegralWalls:
             rows = (wflat.reshape(wflat.shape + (1,) * (v.ndim - 1)) * jnp.repeat(v, st.idx.shape[1], axis=0))
             return jnp.zeros((n,) + v.shape[1:], v.dtype).at[flat].add(rows)
 
-        B = scatter(Fb)
-        dvol = scatter(un)
-        if scheme.self_flux:
-            beta_n = scatter(bp.normal)                                            # sum_b dGamma N_i(x_b) n_b
-            B = B - ale_flux_dot(U, prim, w, beta_n, eos)
-            if scheme.diffusive:
-                B = B + jnp.einsum("nvd,nd->nv", particle_flux(prim, geom, scheme, params), beta_n)
-            dvol = dvol - jnp.sum(w * beta_n, axis=-1)
+        # F_h(x_b) . n_b = sum_j N_j(x_b) F_j . n_b: the particles' own total flux interpolated to
+        # the wall point (the flux that the symmetric pair sum of eq. 4.22 already carries to the
+        # wall; decision 54): B_i = sum_b dGamma_b N_i(x_b) [F_b - F_h/2 - (s - 1/2) F_i] . n_b
+        pick = lambda a: a[st.idx]  # noqa: E731
+        prim_j = Primitive(*(pick(getattr(prim, f.name)) for f in dataclasses.fields(Primitive)))
+        nb = jnp.broadcast_to(bp.normal[:, None, :], st.dx.shape)
+        Fj = ale_flux_dot(pick(U), prim_j, pick(w), nb, eos)                      # [Nb, K, nv]
+        if scheme.diffusive:
+            Dp = particle_flux(prim, geom, scheme, params)                        # [N, nv, d]
+            Fj = Fj - jnp.einsum("bkvd,bkd->bkv", pick(Dp), nb)
+        Fh = jnp.einsum("bk,bkv->bv", jnp.where(st.mask, vals, 0.0), Fj)
+        wh = jnp.einsum("bk,bkd,bd->b", jnp.where(st.mask, vals, 0.0), pick(w), bp.normal)
+        B = scatter(Fb - 0.5 * Fh)
+        dvol = scatter(un - 0.5 * wh)
+        beta_n = scatter(bp.normal)                                                # sum_b dGamma N_i(x_b) n_b
+        c = 0.5 - (1.0 if scheme.self_flux else 0.0)                               # 1/2 - s
+        Fi = ale_flux_dot(U, prim, w, beta_n, eos)
+        if scheme.diffusive:
+            Dn = jnp.einsum("nvd,nd->nv", Dp, beta_n)
+            Fi = Fi - Dn
+        B = B + c * Fi
+        dvol = dvol + c * jnp.sum(w * beta_n, axis=-1)
+        # first-moment correction of the rows near a wall (decision 54): the one-point pair areas
+        # of rows whose neighbours have truncated supports and the wall quadrature leave
+        # V_i E_i = sum_j dx_ij (x) A_ij / 2 + sum_b dGamma_b N_i(x_b) (x_b - x_i) (x) n_b / 2 - V_i I
+        # != 0, so a linear flux F gets the rate V_i (I + E_i) : grad F; subtracting
+        # V_i E_i : grad F_i (grad F_i from the particle's own fit, exact for linear F) makes the
+        # wall rows linearly consistent; it vanishes for a uniform state and in the interior.  Only
+        # with the self term: it is not a pair difference, and s = 0 is the conservative form; and
+        # only with a fit (first-order schemes without one are not linearly consistent anyway)
+        if not scheme.self_flux or geom.coeffs is None:
+            return B, dvol
+        rows, _ = self.near_rows(p, bp.x)
+        VE = moment_defect(p, geom, st, weight, bp.normal, rows)                  # [R, d, d]
+        Ft = jnp.stack([ale_flux_dot(U, prim, w, jnp.broadcast_to(e, w.shape), eos)
+                        for e in jnp.eye(d, dtype=w.dtype)], axis=-1)             # [N, nv, d]
+        if scheme.diffusive:
+            Ft = Ft - Dp
+        corr = jnp.einsum("nac,nvca->nv", VE, fit_gradient(geom, Ft, scheme.fit_degree, rows))
+        B = B.at[rows].add(-corr, mode="drop")
+        if not scheme.frame == "eulerian":
+            cv = jnp.einsum("nac,nca->n", VE, fit_gradient(geom, w, scheme.fit_degree, rows))
+            dvol = dvol.at[rows].add(-cv, mode="drop")
         return B, dvol
 
     def forces(self, p: Particles, params, scheme):
@@ -250,7 +370,8 @@ class BoundaryIntegralWalls:
     # -- the in-run checks -------------------------------------------------------------------
     def band_status(self, p: Particles):
         """``(bits, particle)``: WALL_CROSSED for a fluid particle beyond a wall of the set-up
-        geometry, BOUNDARY_OVERFLOW for a wall stencil with more than ``capacity`` particles."""
+        geometry, BOUNDARY_OVERFLOW for a wall stencil with more than ``capacity`` particles (or
+        more particles near the walls than the correction rows hold)."""
         from .status import Status
 
         p = jax.lax.stop_gradient(p)
@@ -262,8 +383,9 @@ class BoundaryIntegralWalls:
         for s in range(self.segments.shape[0]):
             crossed = crossed | beyond_segment(p.x, self.segments[s, 0], self.segments[s, 1], self.band, jnp)
         crossed = crossed & fluid
-        st = self.stencils(p, self.points({}).x)
-        over = jnp.any(st.count > self.capacity)
+        xb = self.points({}).x
+        st = self.stencils(p, xb)
+        over = jnp.any(st.count > self.capacity) | self.near_rows(p, xb)[1]
         hit = jnp.any(crossed)
         bits = (jnp.where(hit, jnp.int32(Status.WALL_CROSSED), 0)
                 | jnp.where(over, jnp.int32(Status.BOUNDARY_OVERFLOW), 0)).astype(jnp.int32)
@@ -334,6 +456,20 @@ class BoundaryIntegral:
                              f"{int(count[b])} particles within its support, the MLS fit of degree "
                              f"{max(scheme.degree, scheme.fit_degree)} needs more than {m}; allowed: a larger "
                              "scheme.beta or more particles near the walls")
+        # the cell grid of the stencil search: cells of the largest support radius with headroom
+        # (volumes of moving particles grow; a support beyond the cells stops the run loudly)
+        h_set = scheme.beta * np.asarray(p_fluid.vol) ** (1.0 / p_fluid.dim)
+        grid = plan(np.asarray(p_fluid.x), h_set, domain, support=kern.support, headroom=headroom,
+                    cell_size=kern.support * float(h_set.max()) * headroom)
+        near_grid = plan(np.asarray(p_fluid.x), h_set, domain, support=NEAR_SUPPORTS * kern.support,
+                         headroom=headroom, cell_size=NEAR_SUPPORTS * kern.support * float(h_set.max()) * headroom)
+        near = wall_stencils(p_fluid.x, p_fluid.vol, p_fluid.kind, xb, beta=scheme.beta,
+                             support=NEAR_SUPPORTS * kern.support,
+                             capacity=min(p_fluid.n, 3 ** p_fluid.dim * near_grid.cell_capacity),
+                             box=None if box is None else tuple(map(jnp.asarray, box)), grid=near_grid)
+        near_capacity = min(p_fluid.n, int(math.ceil(int(jnp.max(near.count)) * headroom)))
+        n_near = np.unique(np.asarray(near.idx)[np.asarray(near.mask)]).size
+        n_rows = min(p_fluid.n, int(math.ceil(n_near * headroom)))
         closed = [(np.asarray(outline(c, full)), c.fluid == "inside") for c in curves if c.closed]
         segs = [outline(c, full) for c in curves if not c.closed]
         obj = BoundaryIntegralWalls(
@@ -341,7 +477,8 @@ class BoundaryIntegral:
             segments=jnp.asarray(np.asarray(segs, float).reshape(-1, 2, 2)),
             curves=curves, no_slip=tuple(bool(s) for s in ns_flags),
             fluid_inside=tuple(ins for _, ins in closed), capacity=int(math.ceil(count.max() * headroom)),
-            beta=float(scheme.beta), kernel=scheme.kernel, band=float(band), box=box, n_walls=len(pairs))
+            beta=float(scheme.beta), kernel=scheme.kernel, band=float(band), box=box, n_walls=len(pairs),
+            grid=grid, near_grid=near_grid, near_capacity=near_capacity, n_rows=n_rows)
         return p_fluid, obj
 
 
