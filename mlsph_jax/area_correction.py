@@ -84,6 +84,10 @@ class ConsistentCorrection:
     degree: int = 2
 
     def apply(self, A, dx, h, vol, jsafe, rev, pair_mask):
+        # solved in float64 whatever the state's precision (run.precision = "float32" keeps the
+        # small moment differences, like the MLS moment matrices, in float64); A returned in its own
+        out_dtype = A.dtype
+        A, dx, h, vol = (jnp.asarray(a, jnp.float64) for a in (A, dx, h, vol))
         Q, G = constraint_planes(dx, h, self.degree)
         Q = jnp.where(pair_mask[..., None], Q, 0.0)
         target = vol[:, None, None] * jnp.swapaxes(G, 1, 2)          # [N, d, m-1]
@@ -104,7 +108,7 @@ class ConsistentCorrection:
         J = 2.0 * jnp.einsum("nk,nkr,nks->nrs", w[..., 0], Q, Q)
         m = Q.shape[-1]
         floor = EPS * jnp.trace(J, axis1=1, axis2=2) / m
-        Jinv = jnp.linalg.inv(J + floor[:, None, None] * jnp.eye(m))
+        Jinv = jnp.linalg.inv(J + floor[:, None, None] * jnp.eye(m, dtype=J.dtype))
         reg = EPS * jnp.mean(floor)
 
         def normal(mu):
@@ -115,12 +119,15 @@ class ConsistentCorrection:
 
         scale = jnp.sqrt(jnp.sum((vol / h) ** 2))                    # the size of the areas (V / h)
         r = (target - moments(A)) / scale
-        mu, _ = jax.scipy.sparse.linalg.cg(normal, r, tol=0.0, atol=CG_ATOL, maxiter=CG_MAXITER, M=precond)
+        # the tolerance of the areas' own precision: a float32 state only needs (and its rounded
+        # lattice offsets only allow) the correction to float32 resolution
+        atol = CG_ATOL if out_dtype == jnp.float64 else 0.1 * float(jnp.finfo(out_dtype).eps)
+        mu, _ = jax.scipy.sparse.linalg.cg(normal, r, tol=0.0, atol=atol, maxiter=CG_MAXITER, M=precond)
         # jax's cg returns no convergence flag: the residual of the normal equations, checked
         # against a hundred times the stopping tolerance (a solve that ran into CG_MAXITER)
         res = normal(mu) - r
-        converged = jax.lax.stop_gradient(jnp.sqrt(jnp.sum(res * res)) <= 100.0 * CG_ATOL)
-        return A + scale * lift(LT(mu)[0]), converged
+        converged = jax.lax.stop_gradient(jnp.sqrt(jnp.sum(res * res)) <= 100.0 * atol)
+        return (A + scale * lift(LT(mu)[0])).astype(out_dtype), converged
 
 
 AREA_CORRECTIONS.register("none", NoCorrection())

@@ -120,7 +120,7 @@ def check_cylinder(cfg: dict) -> None:
     problems = []
     if cfg["eos"]["kind"] != "ideal_gas":
         problems.append(f"invalid eos.kind={show(cfg['eos']['kind'])}: case cylinder is a compressible "
-                        "ideal-gas flow at free-stream Mach number case.mach (SPEC V9); allowed: \"ideal_gas\"")
+                        "ideal-gas flow at free-stream Mach number case.mach (thesis §4.5.2); allowed: \"ideal_gas\"")
     if cfg["scheme"]["method"] != "mlsph_ale":
         problems.append(f"invalid scheme.method={show(cfg['scheme']['method'])}: the body is a boundary-integral "
                         "wall (thesis eq. 4.24), derived for MLS shape functions; allowed: \"mlsph_ale\"")
