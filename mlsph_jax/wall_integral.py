@@ -95,6 +95,15 @@ class WallStencils:
     count: jax.Array
 
 
+def search_grid(x, h, domain, support: float, headroom: float = 1.5) -> NeighborSpec:
+    """The cell grid of a wall-stencil search (:func:`wall_stencils` ``grid``): cells of the
+    largest support radius ``support * max h`` with ``headroom`` (volumes of moving particles grow;
+    a support beyond the cells stops the run loudly)."""
+    h = np.asarray(h)
+    return plan(np.asarray(x), h, domain, support=support, headroom=headroom,
+                cell_size=support * float(h.max()) * headroom)
+
+
 def wall_stencils(x, vol, kind, xb, *, beta: float, support: float, capacity: int, box=None,
                   grid=None) -> WallStencils:
     """The ``capacity`` nearest non-ghost particles within ``support * h_b`` of each ``xb``
@@ -459,10 +468,8 @@ class BoundaryIntegral:
         # the cell grid of the stencil search: cells of the largest support radius with headroom
         # (volumes of moving particles grow; a support beyond the cells stops the run loudly)
         h_set = scheme.beta * np.asarray(p_fluid.vol) ** (1.0 / p_fluid.dim)
-        grid = plan(np.asarray(p_fluid.x), h_set, domain, support=kern.support, headroom=headroom,
-                    cell_size=kern.support * float(h_set.max()) * headroom)
-        near_grid = plan(np.asarray(p_fluid.x), h_set, domain, support=NEAR_SUPPORTS * kern.support,
-                         headroom=headroom, cell_size=NEAR_SUPPORTS * kern.support * float(h_set.max()) * headroom)
+        grid = search_grid(p_fluid.x, h_set, domain, kern.support, headroom)
+        near_grid = search_grid(p_fluid.x, h_set, domain, NEAR_SUPPORTS * kern.support, headroom)
         # a grid pays only when the cells around a wall point hold fewer candidates than the whole
         # fluid: with strongly graded layouts (the cylinder's polar rings, h growing 100-fold) the
         # cells of the largest support hold nearly every particle near the body, and the cell
