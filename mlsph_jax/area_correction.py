@@ -24,7 +24,8 @@ normal equations L L^T mu = r are solved by block-Jacobi preconditioned conjugat
 (matrix-free, jit-able, differentiable).  The closure sum_j A_ij (the quadrature defect of SPEC
 §5.5) is not constrained: with it the system converged 10 x slower and gave a larger error
 (decision 59).  On a lattice (*) already holds to round-off, so the areas are unchanged there.
-One CG solve per geometry: once per chunk for Eulerian particles, once per stage for moving ones.
+One CG solve per geometry: once per run for Eulerian particles (and after a neighbour regrowth),
+once per stage for moving ones.
 ``apply`` returns ``(A, converged)``; a solve that stops at ``CG_MAXITER`` above its tolerance sets
 ``Status.AREA_CORRECTION_UNCONVERGED`` (through ``Geometry.overflow``), which stops the run loudly.
 """

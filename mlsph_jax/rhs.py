@@ -73,7 +73,8 @@ __all__ = ["Geometry", "evaluate", "frame_velocity", "geometry", "reconstruct", 
 class Geometry:
     """Everything the fluxes need that depends only on positions and volumes.
 
-    For Eulerian runs it is computed once per chunk; for moving particles once per stage.
+    For Eulerian runs it is computed once per run (again only after a neighbour regrowth); for
+    moving particles once per stage.
     idx/mask/rev: neighbour list; pair_mask excludes padding and self; dx[N,K,d] = x_j - x_i;
     A[N,K,d] area vectors; h[N]; coeffs[N,m,K] reconstruction fit (None for first order);
     interp[N,K] weights of the position update; degree[N,2] the active degree of the area shape
