@@ -11,12 +11,19 @@ For each ``--set``-style layout (``--n-theta`` values; the config's other settin
 * ``run``: ``--steps`` SSP-RK3 steps of the full simulation at a fixed step near the CFL step (no output):
   particle-steps per second after compilation, and the compile time.
 
+``--steady``: steps to the steady state (``case.steady_tol``) with and without the convergence
+accelerator, local time stepping (``time.local_time_stepping``, decision 62), for each
+``--ratios`` value of ``time.local_step_ratio``: steps, wall time, C_D and C_p of each run
+(``--steady-set`` adds overrides; default the study's coarse layout: n_theta 32, far field at
+40 D, Mach 0.2).
+
 The load average is recorded beside every timing ("contended" above 2.5).  Prints a line per
 layout and writes ``experiments/output/bench_cylinder.json``.  Not a test.
 
 Usage::
 
     python experiments/bench_cylinder.py --n-theta 32 48 --steps 200 --repeat 5
+    python experiments/bench_cylinder.py --n-theta --steady --ratios 8 16
 """
 
 from __future__ import annotations
@@ -50,11 +57,15 @@ def variants(walls, scheme) -> dict:
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--n-theta", type=int, nargs="+", default=[32, 48])
+    ap.add_argument("--n-theta", type=int, nargs="*", default=[32, 48], help="layouts timed (none: only --steady)")
     ap.add_argument("--steps", type=int, default=200)
     ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--steady", action="store_true", help="steps to steady state with/without local time steps")
+    ap.add_argument("--ratios", type=float, nargs="+", default=[4.0], help="time.local_step_ratio values")
+    ap.add_argument("--steady-set", nargs="*", default=list(STEADY_STUDY), help="overrides of the steady study")
     args = ap.parse_args(argv)
     rows = []
+    steady = steady_study(args.steady_set, args.ratios) if args.steady else []
     for nt in args.n_theta:
         cfg = load(nt)
         pb = build_problem(cfg)
@@ -86,7 +97,33 @@ def main(argv=None):
               f"(dt {s['dt_last']:.3g}), compile {s['compile_time_s']:.1f} s; {tag(load_run)}", flush=True)
     out = pathlib.Path(__file__).parent / "output"
     out.mkdir(exist_ok=True)
-    (out / "bench_cylinder.json").write_text(json.dumps({"argv": sys.argv[1:], "rows": rows}, indent=1))
+    (out / "bench_cylinder.json").write_text(json.dumps({"argv": sys.argv[1:], "rows": rows, "steady": steady},
+                                                        indent=1))
+
+
+#: the steady study's layout: the config's far field (40 D) at the coarse n_theta = 32, Mach 0.2
+STEADY_STUDY = ("case.n_theta=32", "case.mach=0.2", "time.t_end=80", "output.snapshots=80", "case.steady_tol=1e-3")
+
+
+def steady_study(overrides, ratios) -> list[dict]:
+    """One run with the global step, one per local-step ratio, each to ``case.steady_tol``."""
+    out = []
+    for ratio in [None, *ratios]:
+        extra = [] if ratio is None else ["time.local_time_stepping=true", f"time.local_step_ratio={ratio!r}"]
+        cfg = config_mod.load(CONFIG_DIR / "cylinder.toml", ["output.plots=false", "output.progress=false",
+                                                             *overrides, *extra])
+        try:
+            s = run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True).summary
+            m = s["metrics"]
+            row = {"local_step_ratio": ratio, "status": s["status"], "steps": int(s["n_steps"]),
+                   "t_final": s["t_final"], "steady": s["steady_state"], "wall_s": s["wall_time_s"],
+                   **{k: m[k] for k in ("cd", "cd_pressure", "cp_front", "cp_base", "recirculation_length")}}
+        except Exception as e:   # a diverging variant is a result of the study, not a crash of it
+            row = {"local_step_ratio": ratio, "status": f"failed: {e}"}
+        row["load_average"] = os.getloadavg()[0]
+        out.append(row)
+        print("steady study", {k: (round(v, 5) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
+    return out
 
 
 if __name__ == "__main__":

@@ -279,6 +279,9 @@ def _diff_kw(args) -> dict:
 def _cfl_kw(cfg) -> dict:
     """The config's CFL numbers (time.cfl, time.cfl_viscous) for the differentiated runs' step checks."""
     t = cfg.get("time", {})
+    if t.get("local_time_stepping", False):
+        raise InputError("invalid time.local_time_stepping=true for a differentiated run: its fixed steps are one "
+                         "dt for every particle; allowed: false (set it with --set time.local_time_stepping=false)")
     return {"cfl": t.get("cfl", 0.3), "cfl_viscous": t.get("cfl_viscous", 0.125)}
 
 

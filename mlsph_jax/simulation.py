@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import re
 import signal
 import threading
@@ -112,7 +113,8 @@ class Simulation:
 
     def __init__(self, problem: Problem, *, cfl: float = 0.3, dt: float = 0.0, chunk: int = 50,
                  max_steps: int = 1_000_000, dt_min: float = 1e-14, headroom: float = 1.3,
-                 cfl_viscous: float = 0.125, devices: int = 1, precision: str = "float64"):
+                 cfl_viscous: float = 0.125, devices: int = 1, precision: str = "float64",
+                 local_time_stepping: bool = False, local_step_ratio: float = 4.0):
         #: precision of the state, parameters and geometry (``run.precision``): the problem is
         #: cast once here, so the chunk traces (and the result holds) that precision
         self.precision = precision
@@ -122,7 +124,17 @@ class Simulation:
         #: particle-axis sharding over ``devices`` devices (``None``: one device; see
         #: :mod:`mlsph_jax.sharding`, the ``run.devices`` setting)
         self.sharding = particle_sharding(devices, problem.particles.n)
-        self.control = StepControl(cfl=cfl, cfl_viscous=cfl_viscous, dt_fixed=dt, dt_min=dt_min * problem.t_end)
+        if local_time_stepping and (dt > 0 or problem.scheme.moving):
+            why = (f"time.dt={dt!r} fixes one step for every particle" if dt > 0 else
+                   f"scheme.frame={problem.scheme.frame!r} moves the particles (their positions would advance "
+                   "by different steps)")
+            raise InputError(f"invalid time.local_time_stepping=true: {why}; allowed: local time stepping "
+                             "with the adaptive step (time.dt = 0) and scheme.frame = 'eulerian'")
+        if isinstance(local_step_ratio, bool) or not (isinstance(local_step_ratio, int | float)
+                                                       and math.isfinite(local_step_ratio) and local_step_ratio >= 1):
+            raise InputError(f"invalid time.local_step_ratio={local_step_ratio!r}; allowed: a finite number >= 1")
+        self.control = StepControl(cfl=cfl, cfl_viscous=cfl_viscous, dt_fixed=dt, dt_min=dt_min * problem.t_end,
+                                   local=bool(local_time_stepping), local_ratio=float(local_step_ratio))
         self.chunk_steps = int(chunk)
         self.max_steps = int(max_steps)
         self.headroom = headroom
@@ -164,6 +176,8 @@ class Simulation:
         return {"case": self.problem.case, "t_end": float(self.problem.t_end), "snapshots": int(snapshots),
                 "chunk": self.chunk_steps, "cfl": c.cfl, "cfl_viscous": c.cfl_viscous, "dt": c.dt_fixed,
                 "dt_min": c.dt_min, "neighbor_headroom": float(self.headroom),
+                **({"local_time_stepping": True, "local_step_ratio": c.local_ratio} if c.local else {}),
+                # (absent without local steps: checkpoints from before the setting restart)
                 "n_particles": int(self.problem.particles.n),
                 "scheme": dataclasses.asdict(self.problem.scheme)}
 
@@ -598,7 +612,9 @@ def run_problem(problem: Problem, cfg: Mapping | None = None, out_dir=None, quie
                      max_steps=tcfg.get("max_steps", 1_000_000), dt_min=tcfg.get("dt_min", 1e-14),
                      headroom=(cfg or {}).get("scheme", {}).get("neighbor_headroom", 1.3),
                      cfl_viscous=tcfg.get("cfl_viscous", 0.125), devices=(cfg or {}).get("run", {}).get("devices", 1),
-                     precision=(cfg or {}).get("run", {}).get("precision", "float64"))
+                     precision=(cfg or {}).get("run", {}).get("precision", "float64"),
+                     local_time_stepping=tcfg.get("local_time_stepping", False),
+                     local_step_ratio=tcfg.get("local_step_ratio", 4.0))
     return sim.run(out_dir, snapshots=ocfg.get("snapshots", 10), progress=ocfg.get("progress", True) and not quiet,
                    plots=ocfg.get("plots", True), overwrite=overwrite, restart=restart,
                    degree_fallback_warn=ocfg.get("degree_fallback_warn", fallback.DEFAULT_WARN))

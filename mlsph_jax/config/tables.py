@@ -167,6 +167,14 @@ TIME_KEYS: dict[str, Key] = {
     "chunk": Key(int, 50, minimum=1,
                  doc="time steps per jitted scan chunk (output, progress and neighbour checks "
                      "happen between chunks)"),
+    "local_time_stepping": Key(bool, False,
+                               doc="steady runs only: every fluid particle advances by its own CFL step and t by "
+                                   "the smallest (pseudo-time; the transient is not time-accurate); needs time.dt = 0 "
+                                   "and scheme.frame = 'eulerian' (docs/architecture.md decision 62)"),
+    "local_step_ratio": Key(float, 4.0, minimum=1.0,
+                            doc="with time.local_time_stepping: the largest ratio of a particle's step to the "
+                                "smallest (uncapped steps diverged on the cylinder at r_far = 40 D; 1 = the "
+                                "global step)"),
     "dt_min": Key(float, 1e-14, minimum=0.0, maximum=1.0, exclusive_minimum=True,
                   exclusive_maximum=True,
                   doc="time-step underflow threshold relative to t_end: the run fails if "
