@@ -8,7 +8,7 @@ switched off, and in the interior (3 D < r < 0.8 r_far).  Writes
 
 Usage::
 
-    python experiments/cylinder_linear_residual.py --n-theta 48 --r-far 10
+    python experiments/cylinder_linear_residual.py --n-theta 48 --r-far 10 [--set scheme.area_correction=quadratic]
 """
 
 from __future__ import annotations
@@ -35,8 +35,8 @@ jax.config.update("jax_enable_x64", True)
 GRAD_P = np.array([0.3, 0.1])
 
 
-def residuals(n_theta: int, r_far: float, rings: int = 5) -> dict:
-    cfg = config.load(CONFIG_DIR / "cylinder.toml", [f"case.n_theta={n_theta}", f"case.r_far={r_far!r}"])
+def residuals(n_theta: int, r_far: float, rings: int = 5, extra=()) -> dict:
+    cfg = config.load(CONFIG_DIR / "cylinder.toml", [f"case.n_theta={n_theta}", f"case.r_far={r_far!r}", *extra])
     pb = build_problem(cfg)
     p, params, scheme = pb.particles, pb.params, pb.scheme
     x = np.asarray(p.x)
@@ -77,8 +77,9 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--n-theta", type=int, default=48)
     ap.add_argument("--r-far", type=float, default=10.0)
+    ap.add_argument("--set", nargs="*", default=[], help="config overrides, e.g. scheme.area_correction=quadratic")
     args = ap.parse_args(argv)
-    res = residuals(args.n_theta, args.r_far)
+    res = residuals(args.n_theta, args.r_far, extra=args.set)
     out = pathlib.Path(__file__).parent / "output"
     out.mkdir(exist_ok=True)
     (out / "cylinder_linear_residual.json").write_text(json.dumps(res, indent=1))
