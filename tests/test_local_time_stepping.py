@@ -102,6 +102,12 @@ def test_bad_input_names_the_setting(cylinder):
     tg = config_mod.load(CONFIG_DIR / "taylor_green_2d.toml", ["case.n=8", "scheme.frame=lagrangian"])
     with pytest.raises(InputError, match=r"scheme.frame='lagrangian'"):
         Simulation(build_problem(tg), local_time_stepping=True)
+    from mlsph_jax.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"time.local_time_stepping=true: time.dt=0.001"):
+        config_mod.load(CONFIG_DIR / "cylinder.toml", ["time.dt=0.001"])
+    with pytest.raises(ConfigError, match=r'time.local_time_stepping=true: scheme.frame="ale_shift"'):
+        config_mod.load(CONFIG_DIR / "cylinder.toml", ["scheme.frame=ale_shift"])
     from mlsph_jax.cli import main
 
     assert main(["sensitivity", str(CONFIG_DIR / "cylinder.toml"), "--wrt", "physics.mu", "--of", "cd",
@@ -119,7 +125,7 @@ def test_local_steps_reach_the_global_steady_state_in_fewer_steps():
     base = ["case.n_theta=32", "case.mach=0.2", "time.t_end=80", "output.snapshots=80", "case.steady_tol=1e-3",
             "output.plots=false", "output.progress=false"]
     runs = []
-    for extra in ([], ["time.local_time_stepping=true", "time.local_step_ratio=4"]):
+    for extra in (["time.local_time_stepping=false"], ["time.local_time_stepping=true", "time.local_step_ratio=4"]):
         cfg = config_mod.load(CONFIG_DIR / "cylinder.toml", [*base, *extra])
         runs.append(run_problem(build_problem(cfg), cfg, quiet=True).summary)
     glob, loc = runs

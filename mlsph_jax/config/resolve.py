@@ -191,6 +191,12 @@ def validate(cfg: Mapping) -> dict:
         raise ConfigError(f"invalid physics.kappa={show(out['physics']['kappa'])} with eos.kind = 'tait': the "
                           "Tait EOS is barotropic and has no energy equation, so heat conduction cannot act; "
                           "allowed: 0 (or an EOS with an energy equation: ideal_gas, stiffened_gas)")
+    t = out["time"]
+    if t["local_time_stepping"] and (t["dt"] > 0 or out["scheme"]["frame"] != "eulerian"):
+        why = (f"time.dt={show(t['dt'])} fixes one step for every particle" if t["dt"] > 0 else
+               f"scheme.frame={show(out['scheme']['frame'])} moves the particles")
+        raise ConfigError(f"invalid time.local_time_stepping=true: {why}; allowed: local time stepping with "
+                          "time.dt = 0 and scheme.frame = 'eulerian' (or time.local_time_stepping = false)")
     if case.check is not None:
         case.check(out)
     return out

@@ -170,7 +170,8 @@ TIME_KEYS: dict[str, Key] = {
     "local_time_stepping": Key(bool, False,
                                doc="steady runs only: every fluid particle advances by its own CFL step and t by "
                                    "the smallest (pseudo-time; the transient is not time-accurate); needs time.dt = 0 "
-                                   "and scheme.frame = 'eulerian' (docs/architecture.md decision 62)"),
+                                   "and scheme.frame = 'eulerian'; differentiated runs (sensitivity, calibrate) "
+                                   "refuse it: --set time.local_time_stepping=false (architecture decision 62)"),
     "local_step_ratio": Key(float, 4.0, minimum=1.0,
                             doc="with time.local_time_stepping: the largest ratio of a particle's step to the "
                                 "smallest (uncapped steps diverged on the cylinder at r_far = 40 D; 1 = the "
