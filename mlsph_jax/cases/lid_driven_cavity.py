@@ -58,7 +58,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from ..boundaries import BOUNDARIES, Wall
+from ..boundaries import Wall
 from ..eos import get_eos, to_conservative, to_primitive
 from ..errors import ConfigError
 from ..plotting import subplots
@@ -68,7 +68,7 @@ from ..simulation import Problem
 from ..state import Domain, Kind, Params, Particles, make_particles
 from .base import register_case
 from .channel_flows import lattice
-from .common import params_from_config, scheme_from_config
+from .common import params_from_config, scheme_from_config, setup_walls, walls_key, walls_problems
 
 # --- config schema: the [case] keys and cross-checks (mlsph_jax.config validates with them) ---------
 
@@ -98,6 +98,7 @@ def check_lid_driven_cavity(cfg: dict) -> None:
     if phys["body_force"]:
         problems.append(f"invalid physics.body_force={show(phys['body_force'])}: the lid-driven "
                         "cavity has no body force; allowed: []")
+    problems += walls_problems(cfg)
     if cfg["scheme"]["frame"] != "eulerian":
         problems.append(f"invalid scheme.frame={show(cfg['scheme']['frame'])}: the cavity's "
                         "mirror ghosts are fixed at set-up, so the particles must stay in place; "
@@ -117,6 +118,7 @@ LID_DRIVEN_CAVITY_KEYS: dict[str, Key] = {
     "re": Key(float, 100.0, minimum=0.0, exclusive_minimum=True,
               doc="Reynolds number Re = rho0 u_lid L / mu (sets physics.mu); Ghia et al. "
                   "(1982) centre-line data exist for 100, 400 and 1000"),
+    "walls": walls_key("the four walls (boundary integral: decision 61 for the corners)"),
     "steady_tol": Key(float, 2e-3, minimum=0.0,
                       doc="stop early once max|u(t2) - u(t1)| / max|u| / (t2 - t1) between two "
                           "output times is below this (1/s; 0 = always run to time.t_end)"),
@@ -144,9 +146,11 @@ def build(cfg: Mapping) -> Problem:
     pf = make_particles(x, np.full(len(x), dx * dx), U, ppd=np.full(len(x), scheme.reconstruction_degree))
     band = scheme.support * scheme.beta * dx
     walls = [Wall(1, 0.0, 1), Wall(1, L, -1), Wall(0, 0.0, 1), Wall(0, L, -1)]
-    particles, mirror = BOUNDARIES.get("mirror_ghosts").setup(pf, walls, band, params, scheme.eos)
-    pad = band + dx
+    # the box holds the ghosts; without them it is the cavity itself, which the boundary-integral
+    # walls span corner to corner (decision 61)
+    pad = band + dx if c["walls"] == "mirror_ghosts" else 0.0
     domain = Domain((-pad, -pad), (L + pad, L + pad), (False, False))
+    particles, boundary = setup_walls(cfg, pf, walls, band, params, scheme, domain)
     re_table = ghia.table_reynolds(c["re"])
 
     def metrics(p: Particles, t: float, P) -> dict[str, float]:
@@ -171,7 +175,7 @@ def build(cfg: Mapping) -> Problem:
         plot_field(Path(out) / "velocity_field.png", p, P, cfg, scheme, title=_title(cfg, t))
 
     return Problem("lid_driven_cavity", particles, params, scheme, domain, cfg["time"]["t_end"], metrics, plot,
-                   config=cfg, description=_title(cfg), boundary=mirror, diagnostics=diagnostics,
+                   config=cfg, description=_title(cfg), boundary=boundary, diagnostics=diagnostics,
                    steady_tol=c["steady_tol"])
 
 
