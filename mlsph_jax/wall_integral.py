@@ -24,7 +24,10 @@ and
   (adiabatic: no heat flux);
 * no-slip walls: tau_b from the velocity gradient of a fixed-centre MLS fit at x_b of degree
   ``scheme.fit_degree`` *constrained* to pass through the wall velocity, u(x_b) = u_w (the
-  constant coefficient is u_w; the others are the weighted least-squares fit of u_j - u_w);
+  constant coefficient is u_w; the others are the weighted least-squares fit of u_j - u_w),
+  falling back in degree where the stencil cannot carry it (:func:`constrained_fit_degrees`:
+  the cubic fit, ill-conditioned on the three particle rows of a lattice wall and singular at
+  the corners of a box; decision 61);
 * free-slip walls: tau_b = 0.
 
 The volume of moving particles follows the same rule (thesis eq. 4.32 with the boundary term,
@@ -165,7 +168,9 @@ def constrained_fit_degrees(M, degree: int, dim: int, rcond: float):
     ``rcond`` drops the degree level of monomial j and every higher one), down to linear (which a
     stencil of more than 3 particles that are not collinear always carries).  A wall point whose
     stencil is cut by a second wall (the corners of a box, decision 61) has too few particles for
-    a cubic fit and drops to the degree they support."""
+    a cubic fit (8 for 9 unknowns on a lattice) and drops to the degree they support; on the
+    three particle rows of a straight lattice wall the cubic fit is ill-conditioned (pivot ratio
+    0.0085 at beta = 1.5) and drops to quadratic too."""
     mdeg = np.asarray(basis.monomial_degrees(degree, dim))[1:]
     ok = jax.vmap(lambda A: cholesky_pivots(A, rcond)[1])(jax.lax.stop_gradient(M))       # [Nb, m-1]
     run = jnp.ones(M.shape[0], bool)
