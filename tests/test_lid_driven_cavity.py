@@ -1,6 +1,6 @@
 """The ``lid_driven_cavity`` case (thesis §3.7.5, SPEC §12.1 V7, §8.3): Ghia reference data,
-config checks, walls and corner ghosts, centre-line interpolation, and a coarse Re = 100 run
-against Ghia et al. (1982).
+config checks, walls and corner ghosts, boundary-integral walls (thesis eq. 4.24; decision 61),
+centre-line interpolation, and a coarse Re = 100 run against Ghia et al. (1982).
 
 Measured at Re = 100 (Eulerian MLSPH-ALE, quadratic reconstruction, c0 = 10 u_lid, CFL 0.6),
 deviations from Ghia at the 15 interior points of each centre line (max / rms):
