@@ -338,7 +338,7 @@ def test_boundary_integral_walls_re100_no_worse_than_mirror_ghosts():
     """Issue 17's target for the cavity: the built-in config (40 x 40, Re = 100, cubic) with
     boundary-integral walls deviates from Ghia no more than with mirror ghosts (measured, ghosts:
     max |u - Ghia| 0.0087, max |v - Ghia| 0.0065; boundary integral: 0.0071, 0.0047, steady at
-    t = 9; about 18 min on 2 contended cores)."""
+    t = 9; 18-20 min on 2 contended cores)."""
     cfg = config.load(CFG, [*QUIET, "case.walls=boundary_integral"])
     r = run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True)
     m = r.summary["metrics"]
