@@ -24,7 +24,10 @@ and
   (adiabatic: no heat flux);
 * no-slip walls: tau_b from the velocity gradient of a fixed-centre MLS fit at x_b of degree
   ``scheme.fit_degree`` *constrained* to pass through the wall velocity, u(x_b) = u_w (the
-  constant coefficient is u_w; the others are the weighted least-squares fit of u_j - u_w);
+  constant coefficient is u_w; the others are the weighted least-squares fit of u_j - u_w),
+  falling back in degree where the stencil cannot carry it (:func:`constrained_fit_degrees`:
+  the cubic fit, ill-conditioned on the three particle rows of a lattice wall and singular at
+  the corners of a box; decision 61);
 * free-slip walls: tau_b = 0.
 
 The volume of moving particles follows the same rule (thesis eq. 4.32 with the boundary term,
@@ -62,6 +65,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .approximation import basis, mls
+from .approximation.mls import cholesky_pivots
 from .boundaries import BOUNDARIES
 from .eos import Primitive, get_eos
 from .errors import InputError
@@ -149,16 +153,49 @@ def wall_stencils(x, vol, kind, xb, *, beta: float, support: float, capacity: in
     return WallStencils(idx, mask, jnp.where(mask[..., None], dx, 0.0), h, count)
 
 
-def constrained_gradient(st: WallStencils, u, u_wall, kernel, degree: int):
+def _constrained_moments(st: WallStencils, kernel, degree: int):
+    """Weights ``w[Nb, K]``, the basis without its constant ``P[Nb, K, m-1]`` (h-scaled offsets)
+    and the moment matrices ``M[Nb, m-1, m-1]`` of the constrained wall fit."""
+    xi = st.dx / st.h[:, None, None]
+    P = basis.evaluate(xi, degree)[..., 1:]
+    w = kernel.w_vec(st.dx, st.h[:, None]) * st.mask
+    return w, P, jnp.einsum("bk,bkm,bkn->bmn", w, P, P)
+
+
+def constrained_fit_degrees(M, degree: int, dim: int, rcond: float):
+    """``(active[Nb, m-1], degree[Nb])``: the degree fallback of the constrained wall fit with the
+    pivot test of the particles' own fits (decision 2: Cholesky pivot ratio s_j / M_jj <
+    ``rcond`` drops the degree level of monomial j and every higher one), down to linear (which a
+    stencil of more than 3 particles that are not collinear always carries).  A wall point whose
+    stencil is cut by a second wall (the corners of a box, decision 61) has too few particles for
+    a cubic fit (8 for 9 unknowns on a lattice) and drops to the degree they support; on the
+    three particle rows of a straight lattice wall the cubic fit is ill-conditioned (pivot ratio
+    0.0085 at beta = 1.5) and drops to quadratic too."""
+    mdeg = np.asarray(basis.monomial_degrees(degree, dim))[1:]
+    ok = jax.vmap(lambda A: cholesky_pivots(A, rcond)[1])(jax.lax.stop_gradient(M))       # [Nb, m-1]
+    run = jnp.ones(M.shape[0], bool)
+    top = jnp.ones(M.shape[0], jnp.int32)
+    for lev in range(2, degree + 1):
+        run = run & jnp.all(jnp.where(jnp.asarray(mdeg == lev)[None, :], ok, True), axis=-1)
+        top = top + run.astype(jnp.int32)
+    return jnp.asarray(mdeg)[None, :] <= top[:, None], top
+
+
+def constrained_gradient(st: WallStencils, u, u_wall, kernel, degree: int, rcond: float | None = None):
     """Gradient ``G[Nb, d, d]`` (G[a, c] = du_a/dx_c) at x_b of the weighted least-squares
     polynomial of ``degree`` through ``u_wall[Nb, d]`` at x_b fitted to ``u[N, d]`` on the
-    stencil (the wall constraint u(x_b) = u_w of SPEC §5.8, imposed exactly)."""
+    stencil (the wall constraint u(x_b) = u_w of SPEC §5.8, imposed exactly).  ``rcond``: the
+    degree fallback of :func:`constrained_fit_degrees` (None: none; a point whose stencil cannot
+    carry ``degree`` then gives a singular fit); where every level is kept the solve is the
+    plain one, bit for bit."""
     d = st.dx.shape[-1]
-    xi = st.dx / st.h[:, None, None]
-    P = basis.evaluate(xi, degree)[..., 1:]                                   # [Nb, K, m-1]
-    w = kernel.w_vec(st.dx, st.h[:, None]) * st.mask
-    M = jnp.einsum("bk,bkm,bkn->bmn", w, P, P)
+    w, P, M = _constrained_moments(st, kernel, degree)
     rhs = jnp.einsum("bk,bkm,bka->bma", w, P, u[st.idx] - u_wall[:, None, :])
+    if rcond is not None:
+        active, _ = constrained_fit_degrees(M, degree, d, rcond)
+        eye = jnp.eye(M.shape[-1], dtype=M.dtype)
+        M = jnp.where(active[:, :, None] & active[:, None, :], M, eye)
+        rhs = jnp.where(active[..., None], rhs, 0.0)
     coef = jnp.linalg.solve(M, rhs)                                           # [Nb, m-1, d]
     g0 = jnp.asarray(basis.gradient_at_origin(degree, d)[1:], st.h.dtype)     # [m-1, d]
     return jnp.einsum("mc,bma->bac", g0, coef) / st.h[:, None, None]
@@ -276,7 +313,7 @@ class BoundaryIntegralWalls:
         pb = interp(prim.p) + rho_b * vn * (vn + jnp.abs(vn) + c_b)
         tn = jnp.zeros_like(bp.x)
         if scheme.viscous and any(self.no_slip):
-            G = constrained_gradient(st, prim.vel, bp.velocity, kern, scheme.fit_degree)
+            G = constrained_gradient(st, prim.vel, bp.velocity, kern, scheme.fit_degree, scheme.rcond)
             D = wall_flux(G, bp.velocity, params["physics.mu"], scheme)          # [Nb, nv, d]
             noslip = jnp.asarray(self.no_slip)[bp.curve]
             d = bp.x.shape[1]
@@ -458,13 +495,15 @@ class BoundaryIntegral:
         big = wall_stencils(p_fluid.x, p_fluid.vol, p_fluid.kind, xb, beta=scheme.beta, support=kern.support,
                             capacity=min(p_fluid.n, 512), box=None if box is None else tuple(map(jnp.asarray, box)))
         count = np.asarray(big.count)
-        m = basis.basis_size(max(scheme.degree, scheme.fit_degree), p_fluid.dim)
+        # the wall state is a linear MLS and the constrained wall fit falls back to linear where its
+        # stencil cannot carry fit_degree (a corner, decision 61): both need more than the linear basis
+        m = basis.basis_size(WALL_STATE_DEGREE, p_fluid.dim)
         if count.min() < m + 1:
             b = int(np.argmin(count))
             raise InputError(f"invalid layout near the wall point x={np.round(np.asarray(xb[b]), 6).tolist()}: "
-                             f"{int(count[b])} particles within its support, the MLS fit of degree "
-                             f"{max(scheme.degree, scheme.fit_degree)} needs more than {m}; allowed: a larger "
-                             "scheme.beta or more particles near the walls")
+                             f"{int(count[b])} particles within its support, the linear MLS fits at a wall "
+                             f"point need more than {m}; allowed: a larger scheme.beta or more particles near "
+                             "the walls")
         # the cell grid of the stencil search: cells of the largest support radius with headroom
         # (volumes of moving particles grow; a support beyond the cells stops the run loudly)
         h_set = scheme.beta * np.asarray(p_fluid.vol) ** (1.0 / p_fluid.dim)

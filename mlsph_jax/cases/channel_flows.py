@@ -41,19 +41,18 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from ..boundaries import BOUNDARIES, Wall
+from ..boundaries import Wall
 from ..config import effective_beta
 from ..eos import get_eos, to_conservative, to_primitive
 from ..errors import ConfigError
 from ..kernels import get_kernel
 from ..plotting import colormap, subplots
 from ..reference.viscous import channel_startup, channel_steady, channel_u_max
-from ..registry import names_of
 from ..schema import Key, join_problems, show
 from ..simulation import Problem
 from ..state import Domain, Kind, Params, Particles, make_particles
 from .base import register_case
-from .common import params_from_config, scheme_from_config
+from .common import params_from_config, scheme_from_config, setup_walls, walls_key, walls_problems
 
 # --- config schema: the [case] keys and cross-checks (mlsph_jax.config validates with them) ---------
 
@@ -84,10 +83,7 @@ def check_channel(cfg: dict) -> None:
         problems.append(f"invalid case.u_plate={show(c['u_plate'])} with physics.body_force="
                         f"{show(bf)}: nothing drives the flow; allowed: u_plate != 0 (Couette) "
                         "or physics.body_force = [f_x, 0.0] with f_x != 0 (Poiseuille)")
-    if c["walls"] == "boundary_integral" and cfg["scheme"]["method"] != "mlsph_ale":
-        problems.append(f"invalid case.walls={show(c['walls'])} with scheme.method="
-                        f"{show(cfg['scheme']['method'])}: the boundary term of thesis eq. 4.24 is derived for "
-                        "MLS shape functions; allowed: scheme.method = \"mlsph_ale\" or case.walls = \"mirror_ghosts\"")
+    problems += walls_problems(cfg)
     reach = 2.0 * get_kernel(cfg["scheme"]["kernel"]).support * effective_beta(cfg["scheme"])
     if not c["nx"] > reach:
         problems.append(f"invalid case.nx={c['nx']}: the period nx dx must exceed the kernel "
@@ -109,10 +105,7 @@ def _channel_keys(u_plate: float) -> dict[str, Key]:
         "u_plate": Key(float, u_plate, unit="m/s",
                        doc="velocity of the top plate (y = L) along x, switched on at t = 0 "
                            "(the bottom plate is fixed); thesis Couette: 1"),
-        "walls": Key(str, "mirror_ghosts", choices=names_of("boundary"),
-                     doc="wall treatment of both plates: mirror ghosts (thesis eq. 3.22) or the "
-                         "boundary integral of thesis eq. 4.24 (no ghosts; needs scheme.method = "
-                         "\"mlsph_ale\"; docs/architecture.md decision 54)"),
+        "walls": walls_key("both plates"),
     }
 
 
@@ -152,8 +145,7 @@ def _build(cfg: Mapping) -> Problem:
     band = scheme.support * scheme.beta * dx   # support radius: every fluid stencil is complete
     plates = [Wall(1, 0.0, 1), Wall(1, gap, -1)]
     domain = Domain((0.0, -band - dx), (nx * dx, gap + band + dx), (True, False))
-    particles, walls = BOUNDARIES.get(c["walls"], "case.walls").setup(pf, plates, band, params, scheme.eos,
-                                                                      scheme=scheme, domain=domain)
+    particles, walls = setup_walls(cfg, pf, plates, band, params, scheme, domain)
     d = drives(cfg)
     u_max = channel_u_max(**d)
 

@@ -1,4 +1,5 @@
-"""Helpers shared by the case builders: parameters and scheme from a resolved config."""
+"""Helpers shared by the case builders: parameters and scheme from a resolved config, and the
+``case.walls`` choice of the wall-bounded cases (couette, poiseuille, lid_driven_cavity)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,9 @@ from collections.abc import Mapping
 
 import jax.numpy as jnp
 
+from ..boundaries import BOUNDARIES
+from ..registry import names_of
+from ..schema import Key, show
 from ..scheme import Scheme
 from ..state import Params
 
@@ -28,3 +32,30 @@ def scheme_from_config(cfg: Mapping) -> Scheme:
     phys = cfg.get("physics", {})
     return dataclasses.replace(s, viscous=float(phys.get("mu", 0.0)) > 0,
                                heat_conduction=float(phys.get("kappa", 0.0)) > 0)
+
+
+def walls_key(which: str) -> Key:
+    """The ``case.walls`` key (the choices are the ``boundary`` registry's names); ``which``: the
+    walls it sets, e.g. "both plates"."""
+    return Key(str, "mirror_ghosts", choices=names_of("boundary"),
+               doc=f"wall treatment of {which}: mirror ghosts (thesis eq. 3.22) or the "
+                   "boundary integral of thesis eq. 4.24 (no ghosts; needs scheme.method = "
+                   "\"mlsph_ale\"; docs/architecture.md decision 54)")
+
+
+def walls_problems(cfg: Mapping) -> list[str]:
+    """Cross-check of ``case.walls``: the boundary integral needs MLS shape functions."""
+    walls, method = cfg["case"]["walls"], cfg["scheme"]["method"]
+    if walls == "boundary_integral" and method != "mlsph_ale":
+        return [f"invalid case.walls={show(walls)} with scheme.method={show(method)}: the boundary term "
+                "of thesis eq. 4.24 is derived for MLS shape functions; allowed: scheme.method = "
+                "\"mlsph_ale\" or case.walls = \"mirror_ghosts\""]
+    return []
+
+
+def setup_walls(cfg: Mapping, p_fluid, walls, band: float, params, scheme, domain):
+    """``(particles, boundary)`` of the ``case.walls`` treatment for the axis-aligned ``walls``
+    (:class:`~mlsph_jax.boundaries.Wall`; boundary-integral segments span ``domain`` along each
+    wall, velocities ``boundary.wall_velocity`` of ``params``)."""
+    return BOUNDARIES.get(cfg["case"]["walls"], "case.walls").setup(p_fluid, walls, band, params, scheme.eos,
+                                                                    scheme=scheme, domain=domain)

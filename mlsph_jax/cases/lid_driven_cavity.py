@@ -12,6 +12,14 @@ velocity makes the vertex velocity the average of the four particles, with verte
 (u_W1 + u_W2)/2 (half the lid speed at the two lid corners, zero at the bottom corners; SPEC
 §8.3 default), i.e. u_GC = u_F.
 
+``case.walls = "boundary_integral"`` replaces the ghosts by the boundary term of thesis eq. 4.24
+(:mod:`mlsph_jax.wall_integral`, the same path as the channel flows; docs/architecture.md
+decisions 54, 60, 61): four segments spanning the cavity corner to corner, n midpoint-rule
+points each (lengths dx, the wall's own normal and velocity; the lid's points move at u_lid up to
+dx/2 from the corners).  No quadrature point sits on a corner, so no vertex velocity is needed:
+the lid-corner singularity is the jump between the lid's last point and the side wall's first.
+The domain is then the cavity itself (nothing lies outside it).
+
 Fluid.  Tait with rho0 = 1, c0 = 10 u_lid, gamma = 7, p0 = 0 (SPEC §13 item 33; the thesis
 does not restate them; Mach 0.1), at rest with rho = rho0 at t = 0.  The viscosity follows from
 ``case.re``: mu = rho0 u_lid L / Re (physics.mu is set to it; the resolved config written to
@@ -58,7 +66,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from ..boundaries import BOUNDARIES, Wall
+from ..boundaries import Wall
 from ..eos import get_eos, to_conservative, to_primitive
 from ..errors import ConfigError
 from ..plotting import subplots
@@ -68,7 +76,7 @@ from ..simulation import Problem
 from ..state import Domain, Kind, Params, Particles, make_particles
 from .base import register_case
 from .channel_flows import lattice
-from .common import params_from_config, scheme_from_config
+from .common import params_from_config, scheme_from_config, setup_walls, walls_key, walls_problems
 
 # --- config schema: the [case] keys and cross-checks (mlsph_jax.config validates with them) ---------
 
@@ -82,7 +90,9 @@ def check_lid_driven_cavity(cfg: dict) -> None:
     """`eos.kind` must be tait. The viscosity follows from `re`: mu = eos.rho0 `u_lid`
     `length` / `re`; physics.mu must be left at 0 (it is then set to that value) or equal it
     (relative difference <= 1e-9). `physics.body_force` must be empty. `scheme.frame` must be
-    eulerian (the mirror ghosts are fixed at set-up, so the particles must not move)."""
+    eulerian (the mirror ghosts are fixed at set-up, so the particles must not move; the
+    boundary-integral walls are validated on fixed particles only). Boundary-integral walls
+    (`walls`) need `scheme.method` = mlsph_ale."""
     c, eos, phys = cfg["case"], cfg["eos"], cfg["physics"]
     problems = []
     if eos["kind"] != "tait":
@@ -98,10 +108,12 @@ def check_lid_driven_cavity(cfg: dict) -> None:
     if phys["body_force"]:
         problems.append(f"invalid physics.body_force={show(phys['body_force'])}: the lid-driven "
                         "cavity has no body force; allowed: []")
+    problems += walls_problems(cfg)
     if cfg["scheme"]["frame"] != "eulerian":
-        problems.append(f"invalid scheme.frame={show(cfg['scheme']['frame'])}: the cavity's "
-                        "mirror ghosts are fixed at set-up, so the particles must stay in place; "
-                        "allowed: \"eulerian\"")
+        why = ("the cavity's mirror ghosts are fixed at set-up, so the particles must stay in place"
+               if c["walls"] == "mirror_ghosts" else
+               "the cavity with boundary-integral walls is validated on fixed particles only")
+        problems.append(f"invalid scheme.frame={show(cfg['scheme']['frame'])}: {why}; allowed: \"eulerian\"")
     if problems:
         raise ConfigError(join_problems(problems))
 
@@ -117,6 +129,7 @@ LID_DRIVEN_CAVITY_KEYS: dict[str, Key] = {
     "re": Key(float, 100.0, minimum=0.0, exclusive_minimum=True,
               doc="Reynolds number Re = rho0 u_lid L / mu (sets physics.mu); Ghia et al. "
                   "(1982) centre-line data exist for 100, 400 and 1000"),
+    "walls": walls_key("the four walls (boundary integral: decision 61 for the corners)"),
     "steady_tol": Key(float, 2e-3, minimum=0.0,
                       doc="stop early once max|u(t2) - u(t1)| / max|u| / (t2 - t1) between two "
                           "output times is below this (1/s; 0 = always run to time.t_end)"),
@@ -144,9 +157,11 @@ def build(cfg: Mapping) -> Problem:
     pf = make_particles(x, np.full(len(x), dx * dx), U, ppd=np.full(len(x), scheme.reconstruction_degree))
     band = scheme.support * scheme.beta * dx
     walls = [Wall(1, 0.0, 1), Wall(1, L, -1), Wall(0, 0.0, 1), Wall(0, L, -1)]
-    particles, mirror = BOUNDARIES.get("mirror_ghosts").setup(pf, walls, band, params, scheme.eos)
-    pad = band + dx
+    # the box holds the ghosts; without them it is the cavity itself, which the boundary-integral
+    # walls span corner to corner (decision 61)
+    pad = band + dx if c["walls"] == "mirror_ghosts" else 0.0
     domain = Domain((-pad, -pad), (L + pad, L + pad), (False, False))
+    particles, boundary = setup_walls(cfg, pf, walls, band, params, scheme, domain)
     re_table = ghia.table_reynolds(c["re"])
 
     def metrics(p: Particles, t: float, P) -> dict[str, float]:
@@ -171,7 +186,7 @@ def build(cfg: Mapping) -> Problem:
         plot_field(Path(out) / "velocity_field.png", p, P, cfg, scheme, title=_title(cfg, t))
 
     return Problem("lid_driven_cavity", particles, params, scheme, domain, cfg["time"]["t_end"], metrics, plot,
-                   config=cfg, description=_title(cfg), boundary=mirror, diagnostics=diagnostics,
+                   config=cfg, description=_title(cfg), boundary=boundary, diagnostics=diagnostics,
                    steady_tol=c["steady_tol"])
 
 
@@ -180,8 +195,9 @@ LID_DRIVEN_CAVITY = register_case(
     defaults_override={"eos.kind": "tait", "eos.rho0": 1.0, "eos.c0": 10.0, "time.t_end": 15.0,
                        "output.snapshots": 15},
     doc="Two-dimensional lid-driven cavity (thesis §3.7.5): fluid at rest in the square [0, "
-        "`length`]^2, the lid moves at `u_lid`; mirror-ghost walls with corner ghosts, run to a "
-        "steady state and compared with Ghia et al. (1982) along the centre lines.")
+        "`length`]^2, the lid moves at `u_lid`; mirror-ghost walls with corner ghosts (or the "
+        "boundary integral of thesis eq. 4.24, `walls`), run to a steady state and compared with "
+        "Ghia et al. (1982) along the centre lines.")
 
 
 def _title(cfg, t: float | None = None) -> str:
