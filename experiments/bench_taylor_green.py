@@ -60,7 +60,8 @@ def bench(n: int, frame: str, steps: int, method: str, cfl: float = 0.3, sets=()
                               f"time.t_end={steps * dt!r}", f"time.dt={dt!r}", *sets])
     pb = build_problem(cfg)
     sim = Simulation(pb, dt=dt, chunk=steps, max_steps=steps + 1,
-                     headroom=cfg["scheme"]["neighbor_headroom"])
+                     headroom=cfg["scheme"]["neighbor_headroom"],
+                     moving_headroom=cfg["scheme"]["moving_neighbor_headroom"])
     t0 = time.perf_counter()
     res = sim.run(None, snapshots=1, progress=False, plots=False)
     total = time.perf_counter() - t0
@@ -72,6 +73,7 @@ def bench(n: int, frame: str, steps: int, method: str, cfl: float = 0.3, sets=()
             "particle_updates_per_s": n * n * s["n_steps"] / max(run, 1e-12),
             "l2_velocity_error": s["metrics"]["l2_velocity_error"],
             "geometry_update": cfg["scheme"]["geometry_update"], "sets": list(sets),
+            "neighbor_capacity": int(sim.nspec.capacity),
             "load_average": [round(v, 2) for v in os.getloadavg()]}
 
 

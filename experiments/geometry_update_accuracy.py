@@ -36,7 +36,8 @@ def run(n: int, frame: str, update: str, t_end: float) -> dict:
     cfg = config.load(CONFIG, [f"case.n={n}", f"scheme.frame={frame}", f"scheme.geometry_update={update}",
                                f"time.t_end={t_end!r}", "output.plots=false", "output.progress=false"])
     pb = build_problem(cfg)
-    sim = Simulation(pb, chunk=cfg["time"]["chunk"], headroom=cfg["scheme"]["neighbor_headroom"])
+    sim = Simulation(pb, chunk=cfg["time"]["chunk"], headroom=cfg["scheme"]["neighbor_headroom"],
+                     moving_headroom=cfg["scheme"]["moving_neighbor_headroom"])
     res = sim.run(None, snapshots=1, progress=False, plots=False)
     s = res.summary
     m = s["metrics"]

@@ -119,7 +119,8 @@ def profile(n: int, frame: str, repeat: int, trace: str | None, chunk_steps: int
     cfg = config.loads(BASE, [f"case.n={n}", f"scheme.frame={frame}", "time.t_end=0.01", *sets])
     pb = build_problem(cfg)
     sc, dom, p, prm = pb.scheme, pb.domain, pb.particles, pb.params
-    setup = setup_run(pb, headroom=cfg["scheme"]["neighbor_headroom"], min_moving_headroom=True)
+    setup = setup_run(pb, headroom=cfg["scheme"]["neighbor_headroom"],
+                      min_moving_headroom=cfg["scheme"]["moving_neighbor_headroom"] or True)
     h = jax.numpy.asarray(smoothing_lengths(p, sc))
     dt = 0.3 * (1.0 / n) / 11.0
     out = {"n": n, "particles": int(p.n), "frame": frame, "capacity": setup.nspec.capacity}

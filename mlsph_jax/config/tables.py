@@ -155,6 +155,12 @@ SCHEME_KEYS: dict[str, Key] = {
     "neighbor_headroom": Key(float, 1.3, minimum=1.0,
                              doc="neighbour-list capacity as a multiple of the largest initial "
                                  "neighbour count"),
+    "moving_neighbor_headroom": Key(float, 0.0, minimum=0.0,
+                                    doc="moving frames, chunked driver: the smallest neighbour-list headroom "
+                                        "(max of this and neighbor_headroom); 0 = automatic (2.0 in 1D, 1.6 "
+                                        "otherwise: room for compression, since a regrowth recompiles). A lower "
+                                        "value (>= 1) pads fewer slots, each of which every pass over the "
+                                        "stencil pays for (docs/performance.md); same numbers to round-off"),
 }
 
 
