@@ -86,7 +86,8 @@ def thunk_table(compiled, args, steps: int, top: int, folder: str) -> list[dict]
 
     hlo = compiled.as_text()
     shape, where = {}, {}
-    files = dict(re.findall(r'^(\d+) "[^"]*?([^"/]+)"$', hlo, re.M))
+    names = hlo.split("\nFileNames\n", 1)[-1].split("\nFunctionNames\n", 1)[0]   # the FileNames section
+    files = dict(re.findall(r'^(\d+) "[^"]*?([^"/]+)"$', names, re.M))
     locs = {k: f"{files.get(f, '?')}:{ln}" for k, f, ln in
             re.findall(r"^(\d+) \{file_name_id=(\d+) function_name_id=\d+ line=(\d+)", hlo, re.M)}
     frames = dict(re.findall(r"^(\d+) \{file_location_id=(\d+) parent", hlo, re.M))
