@@ -18,7 +18,10 @@ functions of the public API):
   (best of ``--repeat``), with per-stage rebuilds (``skin = 0``).
 
 ``--trace DIR`` also records a :mod:`jax.profiler` trace of five steps (open it with
-TensorBoard's profile plugin or Perfetto).
+TensorBoard's profile plugin or Perfetto).  ``--fusions N`` traces one run of the driver chunk
+and prints its N most expensive XLA thunks (time per step summed over their calls, call count,
+output shape and the source line of the jaxpr operation they come from; fusions inside the
+blocked passes run once per row block): where a step's time goes, op by op.
 
     python experiments/profile_step.py --n 100 --frames eulerian ale_shift [--trace /tmp/trace]
 
@@ -73,11 +76,52 @@ def interleaved(calls: dict, repeat: int) -> dict:
     return best
 
 
-def profile(n: int, frame: str, repeat: int, trace: str | None, chunk_steps: int = 10, calls=None) -> dict:
-    cfg = config.loads(BASE, [f"case.n={n}", f"scheme.frame={frame}", "time.t_end=0.01"])
+def thunk_table(compiled, args, steps: int, top: int, folder: str) -> list[dict]:
+    """The ``top`` most expensive XLA thunks of one call of ``compiled`` (a jax.profiler trace,
+    events summed by name), with their HLO output shapes and source lines."""
+    import glob
+    import gzip
+    import re
+    from collections import Counter
+
+    hlo = compiled.as_text()
+    shape, where = {}, {}
+    names = hlo.split("\nFileNames\n", 1)[-1].split("\nFunctionNames\n", 1)[0]   # the FileNames section
+    files = dict(re.findall(r'^(\d+) "[^"]*?([^"/]+)"$', names, re.M))
+    locs = {k: f"{files.get(f, '?')}:{ln}" for k, f, ln in
+            re.findall(r"^(\d+) \{file_name_id=(\d+) function_name_id=\d+ line=(\d+)", hlo, re.M)}
+    frames = dict(re.findall(r"^(\d+) \{file_location_id=(\d+) parent", hlo, re.M))
+    for line in hlo.splitlines():
+        m = re.match(r"\s*(?:ROOT )?%([\w.\-]+) = (.*)", line)
+        if m:
+            shape.setdefault(m.group(1), m.group(2).split(" fusion(")[0].split(" ")[0][:60])
+            op = re.search(r'op_name="([^"]+)"', line)
+            fr = re.search(r"stack_frame_id=(\d+)", line)
+            if op:
+                line_no = locs.get(frames.get(fr.group(1), ""), "?") if fr else "?"   # innermost frame
+                where.setdefault(m.group(1), f"{op.group(1).split('/')[-1]} ({line_no})")
+    jax.block_until_ready(compiled(*args))
+    with jax.profiler.trace(folder, create_perfetto_trace=True):
+        jax.block_until_ready(compiled(*args))
+    f = sorted(glob.glob(f"{folder}/**/*.trace.json.gz", recursive=True))[-1]
+    ev = json.load(gzip.open(f))
+    ev = ev["traceEvents"] if isinstance(ev, dict) else ev
+    tot, cnt = Counter(), Counter()
+    for e in ev:
+        if e.get("ph") == "X" and not e["name"].startswith(("while", "cond", "Thunk", "$", "call")):
+            tot[e["name"]] += e.get("dur", 0)
+            cnt[e["name"]] += 1
+    return [{"thunk": k, "ms_per_step": v / 1e3 / steps, "calls": cnt[k], "shape": shape.get(k, ""),
+             "from": where.get(k, "")} for k, v in tot.most_common(top)]
+
+
+def profile(n: int, frame: str, repeat: int, trace: str | None, chunk_steps: int = 10, calls=None,
+            fusions: int = 0, sets=()) -> dict:
+    cfg = config.loads(BASE, [f"case.n={n}", f"scheme.frame={frame}", "time.t_end=0.01", *sets])
     pb = build_problem(cfg)
     sc, dom, p, prm = pb.scheme, pb.domain, pb.particles, pb.params
-    setup = setup_run(pb, headroom=cfg["scheme"]["neighbor_headroom"], min_moving_headroom=True)
+    setup = setup_run(pb, headroom=cfg["scheme"]["neighbor_headroom"],
+                      min_moving_headroom=cfg["scheme"]["moving_neighbor_headroom"] or True)
     h = jax.numpy.asarray(smoothing_lengths(p, sc))
     dt = 0.3 * (1.0 / n) / 11.0
     out = {"n": n, "particles": int(p.n), "frame": frame, "capacity": setup.nspec.capacity}
@@ -111,6 +155,13 @@ def profile(n: int, frame: str, repeat: int, trace: str | None, chunk_steps: int
     out["chunk_particle_steps_per_s"] = p.n / out["chunk_step_s"]
     if calls is not None:          # for the interleaved timing of every frame's chunks (main)
         calls.update({(frame, k): (c, args, chunk_steps) for k, (c, args) in own.items()})
+    if fusions:
+        c, args = own["chunk"]
+        out["thunks"] = thunk_table(c, args, chunk_steps, fusions, str(OUT.parent / f"trace_{frame}_{n}"))
+        print(f"{frame}: {fusions} most expensive XLA thunks of the driver chunk (ms per step, calls, output, "
+              "operation (source line)):")
+        for t in out["thunks"]:
+            print(f"  {t['ms_per_step']:8.2f} {t['calls']:5d}  {t['shape']:40s} {t['from']}")
     if trace:
         c = jax.jit(step).lower(p, prm, g).compile()
         with jax.profiler.trace(str(Path(trace) / f"{frame}_{n}")):
@@ -127,10 +178,12 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--trace", default=None, help="folder for a jax.profiler trace of five steps")
     ap.add_argument("--chunk-steps", type=int, default=10, help="steps of the timed driver chunk")
+    ap.add_argument("--fusions", type=int, default=0, help="print the N most expensive XLA thunks of the chunk")
+    ap.add_argument("--set", nargs="*", default=[], dest="sets", help="config overrides KEY=VALUE (every frame)")
     a = ap.parse_args(argv)
     rows, calls = [], {}
     for frame in a.frames:
-        r = profile(a.n, frame, a.repeat, a.trace, a.chunk_steps, calls)
+        r = profile(a.n, frame, a.repeat, a.trace, a.chunk_steps, calls, a.fusions, a.sets)
         rows.append(r)
         ms = {k: 1e3 * r[k] for k in ("neighbors_s", "geometry_s", "rhs_s", "step_s", "rest_s")}
         print(f"{frame:>9s} N={r['particles']}: step {ms['step_s']:.1f} ms = 3 x (rhs {ms['rhs_s']:.1f}"

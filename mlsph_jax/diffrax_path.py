@@ -148,6 +148,10 @@ def _check_scheme(problem):
         raise InputError("invalid scheme.limiter='mood' for the diffrax path: MOOD limits the forward-Euler "
                          "sub-steps of SSP-RK3 and has no ODE form; allowed: 'none' (or use "
                          "mlsph_jax.differentiable.make_simulate)")
+    if problem.scheme.moving and problem.scheme.geometry_update != "stage":
+        raise InputError(f"invalid scheme.geometry_update={problem.scheme.geometry_update!r} for the diffrax "
+                         "path: a vector field has no Runge-Kutta step to hold its geometry over; allowed: "
+                         "'stage' (or use mlsph_jax.differentiable.make_simulate or the chunked driver)")
 
 
 def _vector_field(problem, nspec, check_overflow: bool):

@@ -222,6 +222,12 @@ def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, boun
     :class:`mlsph_jax.boundaries.MirrorWalls`) regenerates ghost particles before every stage
     and after the step.
 
+    ``scheme.geometry_update = "step"`` (moving frames, opt-in): ``geom_fn`` is called once, on
+    the step's start state, and its geometry (list, area vectors, fit) serves all three stages;
+    the states, frame velocities and fluxes are still those of each stage.  The pair terms stay
+    antisymmetric (totals conserved to round-off) but the geometry is first order in time
+    (accuracy measured in docs/performance.md).  The default ``"stage"`` rebuilds it every stage.
+
     ``cache`` (e.g. the Verlet candidate list of :func:`make_verlet_stage_geometry`): then
     ``geom_fn(p, cache) -> (Geometry, cache)``, the cache is threaded through the stages and
     returned as a fourth output.
@@ -234,7 +240,9 @@ def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, boun
         a, b = ab
         if boundary is not None:
             z = boundary.apply(z, params)
-        if cch is None:
+        if step_geom is not None:
+            geom = step_geom
+        elif cch is None:
             geom = geom_fn(z)
         else:
             geom, cch = geom_fn(z, cch)
@@ -253,6 +261,13 @@ def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, boun
         return (cand, overflow | overflow_bits(geom), ppd_min, n_evals, unresolved, unres_particle, deg_min,
                 cch), None
 
+    step_geom = None
+    if scheme.moving and scheme.geometry_update == "step":    # opt-in: one geometry per step
+        z0 = p if boundary is None else boundary.apply(p, params)
+        if cache is None:
+            step_geom = geom_fn(z0)
+        else:
+            step_geom, cache = geom_fn(z0, cache)
     coeffs = (jnp.asarray(SSP_RK3_A, p.q.dtype), jnp.asarray(SSP_RK3_B, p.q.dtype))
     ppd_start = jnp.full_like(p.ppd, scheme.reconstruction_degree) if limiter.needs_high_order else p.ppd
     zero = jnp.asarray(0, jnp.int32)

@@ -58,15 +58,18 @@ def moving_min_headroom(dim: int) -> float:
 
 
 def plan_neighbors(particles: Particles, scheme, domain: Domain, *, headroom: float,
-                   min_moving_headroom: bool = False) -> tuple[nb.NeighborSpec, nb.NeighborList]:
+                   min_moving_headroom: bool | float = False) -> tuple[nb.NeighborSpec, nb.NeighborList]:
     """``(spec, list)`` sized from ``particles`` (host side): the cell size of
     :func:`moving_cell_size` and capacities ``ceil(max count * headroom)``.  With
     ``min_moving_headroom`` (the driver, which can regrow but recompiles each time) the headroom
-    of moving particles is at least :func:`moving_min_headroom`; a differentiated run (fixed
-    capacity) uses ``headroom`` as given."""
+    of moving particles is at least :func:`moving_min_headroom` (``True``) or the number given
+    (``scheme.moving_neighbor_headroom``); a differentiated run (fixed capacity) uses
+    ``headroom`` as given."""
     h = smoothing_lengths(particles, scheme)
-    if scheme.moving and min_moving_headroom:
-        headroom = max(headroom, moving_min_headroom(particles.dim))
+    if scheme.moving and min_moving_headroom is not False:
+        floor = (moving_min_headroom(particles.dim) if isinstance(min_moving_headroom, bool)
+                 else float(min_moving_headroom))
+        headroom = max(headroom, floor)
     return nb.allocate(np.asarray(particles.x), h, domain, support=scheme.support, headroom=headroom,
                        cell_size=moving_cell_size(h, scheme, particles.dim))
 
@@ -150,7 +153,7 @@ class RunSetup:
         return dataclasses.replace(self, nspec=spec, nl=nl)
 
 
-def setup_run(problem, *, headroom: float = 1.3, min_moving_headroom: bool = False,
+def setup_run(problem, *, headroom: float = 1.3, min_moving_headroom: bool | float = False,
               particles: Particles | None = None, nspec: nb.NeighborSpec | None = None) -> RunSetup:
     """The :class:`RunSetup` of ``problem`` (sized from ``particles``, default the problem's).
 

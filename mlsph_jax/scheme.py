@@ -23,7 +23,11 @@ from .reconstruction import LOW_MACH_RECONSTRUCTIONS, RECONSTRUCTION_VARIABLES, 
 from .registry import Registry
 from .viscous import STRESSES
 
-__all__ = ["COMPONENTS", "Scheme", "default_beta"]
+__all__ = ["COMPONENTS", "GEOMETRY_UPDATES", "Scheme", "default_beta"]
+
+#: ``scheme.geometry_update``: when moving particles rebuild their geometry (every Runge-Kutta
+#: stage, or once per step; :func:`mlsph_jax.integrate.ssp_rk3_step`).
+GEOMETRY_UPDATES = ("stage", "step")
 
 #: Scheme field -> the registry of the component it names (the only lists of allowed names).
 COMPONENTS: dict[str, Registry] = {
@@ -77,6 +81,10 @@ class Scheme:
                               method's own interpolant of the frame velocity, eq. 4.28: MLS for
                               mlsph_ale, the Shepard average T(3.7) for sph_ale) | ``shepard``;
                               the fluxes and dV/dt use the same particle velocity (decision 44)
+    geometry_update:          ``stage`` (default: neighbour list and geometry of every Runge-Kutta
+                              stage) | ``step`` (moving frames: the geometry of the step's start
+                              reused by its three stages; opt-in, first-order-in-time geometry,
+                              docs/performance.md)
     limiter:                  ``none`` | ``mood``
     viscous, heat_conduction: include the viscous stress / heat flux (:mod:`mlsph_jax.viscous`;
                               set by the case builders from physics.mu > 0 / physics.kappa > 0)
@@ -108,6 +116,7 @@ class Scheme:
     shift_coefficient: float = 0.02
     shift_law: str = "xu"
     position_update: str = "w_i"
+    geometry_update: str = "stage"
     limiter: str = "none"
     viscous: bool = False
     heat_conduction: bool = False
@@ -126,6 +135,9 @@ class Scheme:
         for field, reg in COMPONENTS.items():
             reg.get(getattr(self, field), "eos.kind" if field == "eos" else f"scheme.{field}")
         object.__setattr__(self, "mood_variables", tuple(self.mood_variables))
+        if self.geometry_update not in GEOMETRY_UPDATES:
+            raise InputError(f"invalid scheme.geometry_update={self.geometry_update!r}; allowed: "
+                             f"{', '.join(GEOMETRY_UPDATES)}")
         if not self.mood_variables:
             raise InputError(f"invalid scheme.mood_variables={list(self.mood_variables)!r}; allowed: a non-empty "
                              f"list of {', '.join(NAD_VARIABLES.names())}")

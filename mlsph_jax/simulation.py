@@ -114,7 +114,8 @@ class Simulation:
     def __init__(self, problem: Problem, *, cfl: float = 0.3, dt: float = 0.0, chunk: int = 50,
                  max_steps: int = 1_000_000, dt_min: float = 1e-14, headroom: float = 1.3,
                  cfl_viscous: float = 0.125, devices: int = 1, precision: str = "float64",
-                 local_time_stepping: bool = False, local_step_ratio: float = 4.0):
+                 local_time_stepping: bool = False, local_step_ratio: float = 4.0,
+                 moving_headroom: float = 0.0):
         #: precision of the state, parameters and geometry (``run.precision``): the problem is
         #: cast once here, so the chunk traces (and the result holds) that precision
         self.precision = precision
@@ -138,10 +139,16 @@ class Simulation:
         self.chunk_steps = int(chunk)
         self.max_steps = int(max_steps)
         self.headroom = headroom
+        if moving_headroom != 0 and not moving_headroom >= 1.0:
+            raise InputError(f"invalid scheme.moving_neighbor_headroom={moving_headroom!r}; allowed: 0 (automatic: "
+                             "2.0 in 1D, 1.6 in 2D/3D) or a number >= 1.0")
+        #: the driver's lower bound on the neighbour headroom of moving particles (True: automatic,
+        #: :func:`mlsph_jax.run.moving_min_headroom`; ``scheme.moving_neighbor_headroom``)
+        self.moving_headroom = float(moving_headroom) if moving_headroom else True
         self._regrowths = 0
         #: one entry per neighbour regrowth: the cause and the limits before and after
         self.regrowth_log: list[dict] = []
-        self.setup: RunSetup = setup_run(problem, headroom=headroom, min_moving_headroom=True)
+        self.setup: RunSetup = setup_run(problem, headroom=headroom, min_moving_headroom=self.moving_headroom)
         self._build()
 
     @property
@@ -438,7 +445,7 @@ class Simulation:
             raise InputError(f"{where}: {int(ck.particles.n)} particles in the run, {self.problem.particles.n} now")
         spec = _spec(ck.nspec)
         rebuild = spec != self.nspec
-        self.setup = setup_run(self.problem, headroom=self.headroom, min_moving_headroom=True,
+        self.setup = setup_run(self.problem, headroom=self.headroom, min_moving_headroom=self.moving_headroom,
                                particles=ck.particles, nspec=spec)
         self._regrowths, self.regrowth_log = ck.regrowths, list(ck.regrowth_log)
         if rebuild:   # the run had regrown its neighbour limits: compile for those
@@ -614,7 +621,8 @@ def run_problem(problem: Problem, cfg: Mapping | None = None, out_dir=None, quie
                      cfl_viscous=tcfg.get("cfl_viscous", 0.125), devices=(cfg or {}).get("run", {}).get("devices", 1),
                      precision=(cfg or {}).get("run", {}).get("precision", "float64"),
                      local_time_stepping=tcfg.get("local_time_stepping", False),
-                     local_step_ratio=tcfg.get("local_step_ratio", 4.0))
+                     local_step_ratio=tcfg.get("local_step_ratio", 4.0),
+                     moving_headroom=(cfg or {}).get("scheme", {}).get("moving_neighbor_headroom", 0.0))
     return sim.run(out_dir, snapshots=ocfg.get("snapshots", 10), progress=ocfg.get("progress", True) and not quiet,
                    plots=ocfg.get("plots", True), overwrite=overwrite, restart=restart,
                    degree_fallback_warn=ocfg.get("degree_fallback_warn", fallback.DEFAULT_WARN))

@@ -143,6 +143,15 @@ def test_mood_is_rejected():
         dp.make_solve(pb0, n_steps=0)
 
 
+def test_geometry_per_step_is_rejected_in_a_moving_frame():
+    """``scheme.geometry_update = "step"`` holds a geometry over an SSP-RK3 step, which a vector
+    field does not have: a clear error, not a silently per-stage geometry."""
+    pb0 = periodic_shear_problem()
+    pb = dataclasses.replace(pb0, scheme=dataclasses.replace(pb0.scheme, frame="lagrangian", geometry_update="step"))
+    with pytest.raises(InputError, match="geometry_update='step'"):
+        dp.ode_term(pb)
+
+
 @pytest.mark.slow
 def test_mirror_walls_couette_matches_builtin_with_gradient():
     """Start-up Couette flow with mirror-wall ghosts (regenerated inside the vector field and when a

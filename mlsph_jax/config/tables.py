@@ -15,6 +15,7 @@ from collections.abc import Mapping
 
 from ..registry import names_of, registry
 from ..schema import REQUIRED, Key
+from ..scheme import GEOMETRY_UPDATES
 
 __all__ = ["CASE_NAME", "EOS_KIND", "EOS_SCHEMAS", "OUTPUT_KEYS", "PHYSICS_KEYS", "RUN_KEYS", "SCHEMA_COMMON",
            "SCHEME_KEYS", "TABLES", "TABLE_DOCS", "TIME_KEYS", "all_eos_keys", "effective_beta", "eos_keys"]
@@ -113,6 +114,12 @@ SCHEME_KEYS: dict[str, Key] = {
     "stress": Key(str, "stokes", choices=names_of("scheme.stress"),
                   doc="viscous stress: stokes (mu (grad u + grad u^T - 2/3 div u I)) or "
                       "incompressible (no -2/3 div u term, thesis ch. 3)"),
+    "geometry_update": Key(str, "stage", choices=GEOMETRY_UPDATES,
+                           doc="moving frames: neighbour list and geometry (area vectors, fit) at every "
+                               "Runge-Kutta stage (stage, default; exact SSP-RK3) or once per step at the "
+                               "step's start positions, reused by its three stages (step: opt-in, about "
+                               "half the cost of a moving step, first-order-in-time geometry; measured "
+                               "accuracy in docs/performance.md); no effect in the eulerian frame"),
     "position_update": Key(str, "w_i", choices=names_of("scheme.position_update"),
                            doc="velocity that moves the particles in the lagrangian and ale_shift frames, "
                                "also used by their fluxes (eq. 4.36) and volumes (eq. 4.32): the "
@@ -148,6 +155,12 @@ SCHEME_KEYS: dict[str, Key] = {
     "neighbor_headroom": Key(float, 1.3, minimum=1.0,
                              doc="neighbour-list capacity as a multiple of the largest initial "
                                  "neighbour count"),
+    "moving_neighbor_headroom": Key(float, 0.0, minimum=0.0,
+                                    doc="moving frames, chunked driver: the smallest neighbour-list headroom "
+                                        "(max of this and neighbor_headroom); 0 = automatic (2.0 in 1D, 1.6 "
+                                        "otherwise: room for compression, since a regrowth recompiles). A lower "
+                                        "value (>= 1) pads fewer slots, each of which every pass over the "
+                                        "stencil pays for (docs/performance.md); same numbers to round-off"),
 }
 
 
