@@ -40,6 +40,7 @@ from .checkpoint import (
     read_checkpoint,
     write_checkpoint,
 )
+from .config.tables import LOCAL_TIME_STEPPING_ALLOWED, local_time_stepping_conflict
 from .eos import get_eos, to_primitive
 from .errors import DegreeFallbackWarning, InputError, NeighborOverflowError, RunInterrupted, SimulationError
 from .integrate import MOOD_STATS, Carry, StepControl, initial_carry
@@ -125,12 +126,9 @@ class Simulation:
         #: particle-axis sharding over ``devices`` devices (``None``: one device; see
         #: :mod:`mlsph_jax.sharding`, the ``run.devices`` setting)
         self.sharding = particle_sharding(devices, problem.particles.n)
-        if local_time_stepping and (dt > 0 or problem.scheme.moving):
-            why = (f"time.dt={dt!r} fixes one step for every particle" if dt > 0 else
-                   f"scheme.frame={problem.scheme.frame!r} moves the particles (their positions would advance "
-                   "by different steps)")
-            raise InputError(f"invalid time.local_time_stepping=true: {why}; allowed: local time stepping "
-                             "with the adaptive step (time.dt = 0) and scheme.frame = 'eulerian'")
+        why = local_time_stepping_conflict(dt, problem.scheme.frame)
+        if local_time_stepping and why:
+            raise InputError(f"invalid time.local_time_stepping=true: {why}; allowed: {LOCAL_TIME_STEPPING_ALLOWED}")
         if isinstance(local_step_ratio, bool) or not (isinstance(local_step_ratio, int | float)
                                                        and math.isfinite(local_step_ratio) and local_step_ratio >= 1):
             raise InputError(f"invalid time.local_step_ratio={local_step_ratio!r}; allowed: a finite number >= 1")

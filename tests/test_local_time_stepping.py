@@ -106,7 +106,7 @@ def test_bad_input_names_the_setting(cylinder):
 
     with pytest.raises(ConfigError, match=r"time.local_time_stepping=true: time.dt=0.001"):
         config_mod.load(CONFIG_DIR / "cylinder.toml", ["time.dt=0.001"])
-    with pytest.raises(ConfigError, match=r'time.local_time_stepping=true: scheme.frame="ale_shift"'):
+    with pytest.raises(ConfigError, match=r"time.local_time_stepping=true: scheme.frame='ale_shift'"):
         config_mod.load(CONFIG_DIR / "cylinder.toml", ["scheme.frame=ale_shift"])
     from mlsph_jax.cli import main
 

@@ -16,7 +16,16 @@ from pathlib import Path
 from ..errors import ConfigError, InputError
 from ..registry import registry
 from ..schema import Key, join_problems, parse_value, show, suggest
-from .tables import CASE_NAME, EOS_KIND, SCHEMA_COMMON, TABLES, all_eos_keys, eos_keys
+from .tables import (
+    CASE_NAME,
+    EOS_KIND,
+    LOCAL_TIME_STEPPING_ALLOWED,
+    SCHEMA_COMMON,
+    TABLES,
+    all_eos_keys,
+    eos_keys,
+    local_time_stepping_conflict,
+)
 
 __all__ = ["case_table", "check_defaults_override", "get_case", "load", "loads", "parse_override",
            "registered_cases", "validate"]
@@ -191,12 +200,9 @@ def validate(cfg: Mapping) -> dict:
         raise ConfigError(f"invalid physics.kappa={show(out['physics']['kappa'])} with eos.kind = 'tait': the "
                           "Tait EOS is barotropic and has no energy equation, so heat conduction cannot act; "
                           "allowed: 0 (or an EOS with an energy equation: ideal_gas, stiffened_gas)")
-    t = out["time"]
-    if t["local_time_stepping"] and (t["dt"] > 0 or out["scheme"]["frame"] != "eulerian"):
-        why = (f"time.dt={show(t['dt'])} fixes one step for every particle" if t["dt"] > 0 else
-               f"scheme.frame={show(out['scheme']['frame'])} moves the particles")
-        raise ConfigError(f"invalid time.local_time_stepping=true: {why}; allowed: local time stepping with "
-                          "time.dt = 0 and scheme.frame = 'eulerian' (or time.local_time_stepping = false)")
+    why = local_time_stepping_conflict(out["time"]["dt"], out["scheme"]["frame"])
+    if out["time"]["local_time_stepping"] and why:
+        raise ConfigError(f"invalid time.local_time_stepping=true: {why}; allowed: {LOCAL_TIME_STEPPING_ALLOWED}")
     if case.check is not None:
         case.check(out)
     return out

@@ -196,6 +196,21 @@ TIME_KEYS: dict[str, Key] = {
 }
 
 
+def local_time_stepping_conflict(dt: float, frame: str) -> str | None:
+    """Why ``time.local_time_stepping`` cannot run with the fixed step ``dt`` or ``scheme.frame``
+    (None if it can): the config check and :class:`mlsph_jax.simulation.Simulation` share it."""
+    if dt > 0:
+        return f"time.dt={dt!r} fixes one step for every particle"
+    if frame != "eulerian":
+        return f"scheme.frame={frame!r} moves the particles (their positions would advance by different steps)"
+    return None
+
+
+#: what ``time.local_time_stepping = true`` needs (the end of its error message)
+LOCAL_TIME_STEPPING_ALLOWED = ("local time stepping with the adaptive step (time.dt = 0) and scheme.frame = "
+                               "'eulerian' (or time.local_time_stepping = false)")
+
+
 #: ``[output]``: what a run writes and shows.
 OUTPUT_KEYS: dict[str, Key] = {
     "snapshots": Key(int, 10, minimum=1,
