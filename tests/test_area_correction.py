@@ -104,6 +104,7 @@ def test_unknown_area_correction_is_rejected_naming_the_key():
         Scheme(area_correction="cubic", eos="tait")
 
 
+@pytest.mark.slow   # 30 s; CI time: the correction's forward tests stay in the default suite
 def test_gradient_through_the_correction_matches_central_differences():
     """The CG solve is differentiable (reverse mode through ``jax.scipy.sparse.linalg.cg``): the
     derivative of a smooth function of the corrected areas with respect to the particle positions,

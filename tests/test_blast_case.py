@@ -216,6 +216,7 @@ def test_coarse_run_symmetry_accuracy_far_field(tmp_path):
     assert (tmp_path / "density_field.png").stat().st_size > 0
 
 
+@pytest.mark.slow   # 27 s; CI time: conservation to round-off stays in test_solver's default tests
 def test_mass_is_conserved_to_round_off_away_from_the_far_field():
     """With the waves far from the frozen band (r_interface = 0.02, t_end = 2e-6: the fluid
     near r = R is undisturbed to ~1e-6 kg/m^3), no flux crosses into the far field and the

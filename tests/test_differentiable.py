@@ -104,6 +104,7 @@ def test_bad_inputs_name_the_argument():
         sensitivity(pb, ["physics.mu"], "drag", n_steps=20)
 
 
+@pytest.mark.slow   # 29 s; CI time: the default suite runs the CLI in test_run_status and test_local_time_stepping
 def test_sensitivity_cli(tmp_path):
     from mlsph_jax.cli import main
 
@@ -140,6 +141,7 @@ def test_calibration_recovers_the_taylor_green_viscosity(tmp_path):
     assert rel < 5e-3, r.stdout
 
 
+@pytest.mark.slow   # 87 s; CI time (under 20 min): the default suite calibrates through notebook 02
 def test_calibrate_cli_fits_the_viscosity_and_writes_history_and_plot(tmp_path):
     """`mlsph calibrate` end to end: a target CSV from a hidden Taylor-Green run (Re = 100,
     mu = 0.01), the fit started from Re = 66.7 (mu = 0.015, 50 % off) recovers mu to 0.5 %,
@@ -174,6 +176,7 @@ def test_calibrate_cli_fits_the_viscosity_and_writes_history_and_plot(tmp_path):
     assert main([*common[:5], str(tmp_path / "none.csv"), *common[6:], "--out", str(tmp_path / "bad")]) == 2
 
 
+@pytest.mark.slow   # 29 s; CI time: gradients of runs vs FD stay in the default suite (smooth case, MOOD R1)
 def test_taylor_green_metrics_are_differentiable_and_agree_with_the_host_metrics():
     """The Taylor-Green error metrics exist as jnp functions (``--of l2_velocity_error`` etc.):
     on the same state they equal the host metrics of summary.json and an independent numpy
