@@ -56,7 +56,7 @@ import numpy as np
 
 from .approximation import block_remat
 from .errors import InputError
-from .integrate import ssp_rk3_step, step_status
+from .integrate import fixed_boundary, ssp_rk3_step, step_status
 from .run import cfl_limit, check_fixed_step, default_steps, setup_run
 from .state import Kind, Params, Particles
 from .status import Status, failure, state_status
@@ -170,6 +170,7 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
 
     def _simulate(params: Params, particles: Particles) -> SimOutput:
         geom_fn = setup.geometry_fn(particles)
+        bnd = fixed_boundary(boundary, scheme, particles, params)   # wall searches once (fixed particles)
         st0, bad0 = state_status(particles, params, scheme)
         st0 = st0 | setup.initial_status()
         failed0 = jnp.where(st0 != 0, 0, -1).astype(jnp.int32)
@@ -178,9 +179,9 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
 
         def step(carry, _):
             p, k, st, failed, bad = carry
-            p2, ovf, stats = ssp_rk3_step(p, params, dt, scheme, geom_fn, boundary)
+            p2, ovf, stats = ssp_rk3_step(p, params, dt, scheme, geom_fn, bnd)
             st2, bad2 = step_status(p, p2, params, scheme, dt, ovf, stats, dt_fixed=True, cfl=cfl,
-                                    cfl_viscous=cfl_viscous, boundary=boundary)
+                                    cfl_viscous=cfl_viscous, boundary=bnd)
             alive = st == 0
             commit = alive & (st2 == 0)   # a failing step is not committed; later steps are no-ops
             p = jax.tree_util.tree_map(lambda a, b: jnp.where(commit, a, b), p2, p)

@@ -336,6 +336,15 @@ def step_status(p: Particles, newp: Particles, params: Params, scheme: Scheme, d
 FIXED_DT_SLACK = 2.0
 
 
+def fixed_boundary(boundary, scheme: Scheme, p: Particles, params: Params):
+    """``boundary`` with the searches that depend only on fixed particles done once for ``p``
+    (its ``fix``, e.g. :meth:`mlsph_jax.wall_integral.BoundaryIntegralWalls.fix`) when the
+    particles do not move; otherwise ``boundary`` itself."""
+    if scheme.moving or getattr(boundary, "fix", None) is None:
+        return boundary
+    return boundary.fix(p, params)
+
+
 def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: int, nspec=None, boundary=None,
                sharding=None, skin: float = verlet.VERLET_SKIN):
     """Build ``chunk(carry, params, static_geom, t_stop, step_stop=None) -> carry`` running ``n_steps``
@@ -352,9 +361,12 @@ def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: in
     does the rest.
     """
 
+    boundary0 = boundary
+
     def chunk(carry: Carry, params: Params, static_geom, t_stop, step_stop=None):
         if sharding is not None:
             carry, static_geom = sharding.constrain((carry, static_geom))
+        boundary = fixed_boundary(boundary0, scheme, carry.particles, params)
         cache = None
         if not scheme.moving:
             geom_fn = lambda p: static_geom  # noqa: E731

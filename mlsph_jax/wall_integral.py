@@ -254,6 +254,8 @@ class BoundaryIntegralWalls:
     near_grid: NeighborSpec | None = dataclasses.field(metadata=dict(static=True), default=None)
     near_capacity: int = dataclasses.field(metadata=dict(static=True), default=0)
     n_rows: int = dataclasses.field(metadata=dict(static=True), default=0)
+    #: ``(stencils, rows, rows_overflow)`` of particles that do not move (:meth:`fix`), or None
+    fixed: tuple | None = None
 
     # -- the geometry ------------------------------------------------------------------------
     def default_params(self) -> dict:
@@ -297,11 +299,24 @@ class BoundaryIntegralWalls:
         """Nothing to regenerate (no ghosts)."""
         return p
 
+    def fix(self, p: Particles, params) -> BoundaryIntegralWalls:
+        """These walls with the wall-point stencils and the near-wall rows of ``p`` computed once
+        (``fixed``), for particles that do not move (Eulerian frame: positions, volumes and kinds
+        constant, so the searches of every stage would return the same stencils; the offsets
+        x_j - x_b stay functions of ``p`` and ``params``, so gradients flow as before).  The
+        searches are most of the walls' cost (cylinder, 1,920 particles: 15 of 19 ms per stage)."""
+        xb = self.points(params).x
+        return dataclasses.replace(self, fixed=(self.stencils(p, xb), *self.near_rows(p, xb)))
+
+    def _stencils_and_rows(self, p: Particles, xb):
+        """``(stencils, rows, rows_overflow)`` at the wall points ``xb``: the fixed ones if set."""
+        return self.fixed if self.fixed is not None else (self.stencils(p, xb), *self.near_rows(p, xb))
+
     # -- the wall fluxes ---------------------------------------------------------------------
     def wall_state(self, p: Particles, params, scheme, prim):
         """``(points, stencils, N_j(x_b)[Nb, K], p_b[Nb], tau_b n_b [Nb, d])`` for a state."""
         bp = self.points(params)
-        st = self.stencils(p, bp.x)
+        st = self.fixed[0] if self.fixed is not None else self.stencils(p, bp.x)
         kern = get_kernel(self.kernel)
         vals, _, _, _ = mls.operators_block(st.dx, st.mask, st.h, kernel=kern, degree=WALL_STATE_DEGREE,
                                             rcond=scheme.rcond, derivative="fixed_centre", with_coeffs=False)
@@ -371,7 +386,7 @@ class BoundaryIntegralWalls:
         # only with a fit (first-order schemes without one are not linearly consistent anyway)
         if not scheme.self_flux or geom.coeffs is None:
             return B, dvol
-        rows, _ = self.near_rows(p, bp.x)
+        rows = self.fixed[1] if self.fixed is not None else self.near_rows(p, bp.x)[0]
         VE = moment_defect(p, geom, st, weight, bp.normal, rows)                  # [R, d, d]
         Ft = jnp.stack([ale_flux_dot(U, prim, w, jnp.broadcast_to(e, w.shape), eos)
                         for e in jnp.eye(d, dtype=w.dtype)], axis=-1)             # [N, nv, d]
@@ -429,9 +444,8 @@ class BoundaryIntegralWalls:
         for s in range(self.segments.shape[0]):
             crossed = crossed | beyond_segment(p.x, self.segments[s, 0], self.segments[s, 1], self.band, jnp)
         crossed = crossed & fluid
-        xb = self.points({}).x
-        st = self.stencils(p, xb)
-        over = jnp.any(st.count > self.capacity) | self.near_rows(p, xb)[1]
+        st, _, rows_over = self._stencils_and_rows(p, self.points({}).x)
+        over = jnp.any(st.count > self.capacity) | rows_over
         hit = jnp.any(crossed)
         bits = (jnp.where(hit, jnp.int32(Status.WALL_CROSSED), 0)
                 | jnp.where(over, jnp.int32(Status.BOUNDARY_OVERFLOW), 0)).astype(jnp.int32)

@@ -260,6 +260,49 @@ def test_cell_list_stencils_are_the_brute_force_stencils_bit_for_bit(body):
     assert int(jnp.min(big.count)) > bw.capacity
 
 
+def _fixed_walls_case():
+    sch = Scheme(eos="ideal_gas", viscous=True)
+    p, bw, dom = _body_box(Circle("c", radius=0.5, n_points=40), sch, GAS, vel=(0.4, 0.1))
+    rng = np.random.default_rng(5)
+    p = p.replace(q=p.q * (1.0 + 0.05 * jnp.asarray(rng.standard_normal(p.q.shape))))
+    P = GAS.updated(bw.default_params())
+    _, nl = nb.allocate(p.x, sch.beta * p.vol ** 0.5, dom)
+    geom = jax.jit(lambda p: geometry(p.x, p.vol, nl, sch, dom))(p)
+
+    def loss(P, fixed):
+        walls = bw.fix(p, P) if fixed else bw
+        dq = rhs(p, P, geom, sch, walls)[2]
+        return jnp.sum(dq[:, 1] ** 2), dq
+
+    return p, bw, P, loss
+
+
+def test_searches_done_once_for_fixed_particles_give_the_same_rate():
+    """BoundaryIntegralWalls.fix (what an Eulerian run does once per chunk): the rate of a
+    non-uniform viscous state is the per-stage searches' bit for bit, and the in-run check
+    still sees a wall point crowded beyond its stencil capacity (every Eulerian run with these
+    walls, e.g. the cylinder fingerprint, checks the clean status)."""
+    p, bw, P, loss = _fixed_walls_case()
+    per_stage, once = (jax.jit(lambda P, f=f: loss(P, f)[1])(P) for f in (False, True))
+    assert float(jnp.max(jnp.abs(per_stage))) > 0.1 and np.array_equal(np.asarray(per_stage), np.asarray(once))
+    status = jax.jit(lambda p: bw.fix(p, P).band_status(p)[0])
+    crowd = p.replace(x=jnp.concatenate([p.x, jnp.tile(jnp.asarray([[0.6, 0.0]]), (60, 1))]),
+                      vol=jnp.concatenate([p.vol, jnp.full(60, 0.01)]), q=jnp.concatenate([p.q, p.q[:60]]),
+                      kind=jnp.concatenate([p.kind, jnp.zeros(60, p.kind.dtype)]),
+                      ppd=jnp.concatenate([p.ppd, p.ppd[:60]]))
+    assert Status(int(status(crowd))) & Status.BOUNDARY_OVERFLOW
+
+
+@pytest.mark.slow   # 36 s (two gradient compilations through the wall terms)
+def test_searches_done_once_for_fixed_particles_give_the_same_gradient():
+    """The gradient with respect to the body's radius is the per-stage searches' (the offsets
+    x_j - x_b of the fixed stencils stay functions of the parameters)."""
+    _, _, P, loss = _fixed_walls_case()
+    key = "geometry.c.radius"
+    g0, g1 = (jax.jit(jax.grad(lambda P, f=f: loss(P, f)[0]))(P)[key] for f in (False, True))
+    assert float(g0) != 0.0 and float(g1) == pytest.approx(float(g0), rel=1e-12)
+
+
 # --- in-run checks and bad input --------------------------------------------------------------------
 
 def test_particle_crossing_a_wall_or_crowding_it_stops_the_run():
