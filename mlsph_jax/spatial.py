@@ -8,8 +8,9 @@ shard's stencils touch:
 * **ordering** (host, numpy, at setup): the particles are ranked along a Morton (Z-order) curve
   of their positions quantised on a ``2^b`` grid of the bounding box; shard ``k`` owns the ``k``-th
   of ``D`` contiguous blocks of that order (sizes differ by at most one), a compact region.  A
-  mirror ghost is owned by the shard of its parent (its image across the wall, within the ghost
-  band of it), so the ghosts a shard regenerates read only particles it owns.
+  mirror ghost is not counted in the blocks: it is owned by the shard of its parent (its image
+  across the wall, within the ghost band of it), so the ghosts a shard regenerates read only
+  particles it owns.
 * **halo**: the rows of a shard are its owned particles, then ``H1`` (their neighbours owned
   elsewhere), then ``H2`` (the neighbours of ``H1`` not yet present), then padding (at least
   one row).  Two stencil hops, not one: the j-side midpoint state of a pair is the i-side state
@@ -132,7 +133,10 @@ def build_layout(x: np.ndarray, idx: np.ndarray, mask: np.ndarray, devices: int,
     rank = np.empty(n, np.int64)
     rank[order] = np.arange(n)
     owner = np.empty(n, np.int64)
-    for k, block in enumerate(np.array_split(order, D)):
+    placed = order
+    if ghost is not None and len(ghost):     # the curve's blocks split the other particles equally
+        placed = order[~np.isin(order, ghost)]
+    for k, block in enumerate(np.array_split(placed, D)):
         owner[block] = k
     if ghost is not None and len(ghost):
         owner[ghost] = owner[parent]
@@ -224,7 +228,7 @@ class SpatialSharding:
 
     @property
     def devices(self) -> int:
-        return self.mesh.size
+        return self.layout.rows.shape[0]
 
     @property
     def rows(self) -> int:
