@@ -16,7 +16,8 @@ best round counts.  Every timing carries the 1-minute load average (``os.getload
 just before it.  Also: the compile time of each variant, the collective instructions of its
 compiled chunk (``all-gather``, ``all-reduce``, ``collective-permute``, ``all-to-all``,
 ``reduce-scatter`` in the optimised HLO text; the step and stage loops are compiled once, so
-the count is per chunk, not per step), the halo rows of the spatial layout, and the largest
+the count is per chunk, not per step; also for one chunk of the default ``taylor_green_2d``
+config, adaptive step), the halo rows of the spatial layout, and the largest
 difference of the final conserved quantities from the one-device run (relative to their scale).
 
     python experiments/bench_spatial_shards.py                      # N = 1e4 and 1e5
@@ -93,6 +94,23 @@ def bench(n: int, steps: int, rounds: int, log) -> dict:
     return {"n": n, "particles": N, "steps": steps, "rounds": rounds, "variants": list(rows.values())}
 
 
+def hlo_counts(log) -> dict:
+    """Collective instructions of one compiled chunk of the default ``taylor_green_2d`` config
+    (adaptive CFL step, 12 x 12; the count does not depend on N) in both decompositions."""
+    from mlsph_jax import config
+    from mlsph_jax.cases import build_problem
+    from mlsph_jax.simulation import Simulation
+
+    cfg = config.loads('[case]\nname = "taylor_green_2d"\nn = 12\n', ["time.t_end=0.01"])
+    out = {}
+    for name, dec in (("index", "index"), ("spatial", "spatial")):
+        sim = Simulation(build_problem(cfg), chunk=4, devices=2, decomposition=dec)
+        sim.run(None, snapshots=1, progress=False, plots=False)
+        out[name] = collectives(sim._compiled.as_text())
+        log(f"default taylor_green_2d chunk, {name:8s} decomposition: collectives {out[name]}")
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[100, 316], help="n of the n x n lattice")
@@ -114,6 +132,7 @@ def main(argv=None) -> int:
     log(f"jax {jax.__version__}, devices {jax.devices()}, cpus {os.cpu_count()}, load {os.getloadavg()}")
     out = {"jax": jax.__version__, "cpus": os.cpu_count(), "started": time.strftime("%Y-%m-%d %H:%M:%S"),
            "note": "shared 2-core machine: load averages above 2.5 mean contended timings", "runs": []}
+    out["hlo_default_config"] = hlo_counts(log)
     for n in a.sizes:
         res = bench(n, a.steps, a.rounds, log)
         out["runs"].append(res)
