@@ -37,7 +37,8 @@ particle order and :meth:`SpatialSharding.gather` returns them in it.
 Supported: Eulerian frames (the neighbour list and geometry fixed for the whole run), periodic
 boxes, mirror-ghost walls, frozen particles.  Refused (``InputError`` naming the key): moving
 frames (``scheme.frame``), MOOD (``scheme.limiter``), boundary-integral walls
-(``boundary.kind``), local time stepping (``time.local_time_stepping``).
+(``boundary.kind``), local time stepping (``time.local_time_stepping``), and the differentiated
+and diffrax run paths (:func:`refuse_in`), which run on one device.
 """
 
 from __future__ import annotations
@@ -55,7 +56,7 @@ from .errors import InputError
 from .sharding import AXIS, ParticleSharding, check_devices
 
 __all__ = ["DECOMPOSITIONS", "SpatialGeometry", "SpatialSharding", "check_spatial", "morton_order",
-           "spatial_sharding"]
+           "refuse_in", "spatial_sharding"]
 
 #: The values of ``run.decomposition``.
 DECOMPOSITIONS = ("index", "spatial")
@@ -98,6 +99,16 @@ def check_spatial(scheme, boundary, *, local_time_stepping: bool = False):
     if local_time_stepping:
         raise InputError("invalid time.local_time_stepping=true with run.decomposition=\"spatial\"; "
                          f"{ok}time.local_time_stepping=false (or run.decomposition=\"index\")")
+
+
+def refuse_in(problem, path: str):
+    """Refuse (``InputError``) a problem whose config asks for ``run.decomposition = "spatial"``
+    on a run path that runs on one device (``path``: the differentiated runs, the diffrax path)."""
+    run = ((getattr(problem, "config", None) or {}).get("run") or {})
+    if run.get("decomposition", "index") == "spatial":
+        raise InputError(f"invalid run.decomposition='spatial' for {path}: it runs on one device (the spatial "
+                         "decomposition is built for the chunked driver, mlsph run / Simulation); allowed: 'index' "
+                         "(the default)")
 
 
 def _neighbours(idx: np.ndarray, mask: np.ndarray, rows: np.ndarray) -> np.ndarray:

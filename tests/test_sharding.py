@@ -355,6 +355,13 @@ def test_spatial_decomposition_refuses_what_it_does_not_support():
         cfg = config.loads(text, ["run.decomposition=spatial", *over])
         with pytest.raises(InputError, match=msg):
             run_problem(build_problem(cfg), cfg, quiet=True)
+    pb = build_problem(config.loads(base, ["run.decomposition=spatial"]))
+    from mlsph_jax.diffrax_path import make_solve
+    from mlsph_jax.differentiable import make_simulate
+
+    for build in (make_simulate, make_solve):   # the one-device run paths
+        with pytest.raises(InputError, match=r"invalid run\.decomposition='spatial' for the d.*allowed: 'index'"):
+            build(pb, n_steps=2)
     with pytest.raises(ConfigError, match=r"run\.decomposition"):
         config.loads(base, ["run.decomposition=slabs"])
     with pytest.raises(InputError, match=r"invalid run\.decomposition='slabs'; allowed: 'index', 'spatial'"):
