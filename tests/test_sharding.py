@@ -356,8 +356,8 @@ def test_spatial_decomposition_refuses_what_it_does_not_support():
         with pytest.raises(InputError, match=msg):
             run_problem(build_problem(cfg), cfg, quiet=True)
     pb = build_problem(config.loads(base, ["run.decomposition=spatial"]))
-    from mlsph_jax.diffrax_path import make_solve
     from mlsph_jax.differentiable import make_simulate
+    from mlsph_jax.diffrax_path import make_solve
 
     for build in (make_simulate, make_solve):   # the one-device run paths
         with pytest.raises(InputError, match=r"invalid run\.decomposition='spatial' for the d.*allowed: 'index'"):
@@ -366,3 +366,43 @@ def test_spatial_decomposition_refuses_what_it_does_not_support():
         config.loads(base, ["run.decomposition=slabs"])
     with pytest.raises(InputError, match=r"invalid run\.decomposition='slabs'; allowed: 'index', 'spatial'"):
         Simulation(build_problem(config.loads(base)), decomposition="slabs")
+
+
+#: Sod's tube (1D; FROZEN transmissive ends) in the Eulerian frame without MOOD: first order to
+#: t = 0.02 on one device and spatially on two, then the unlimited quadratic reconstruction,
+#: which blows up in the first step: both runs must name the same step and particle.
+SOD = """
+import json
+import numpy as np
+from mlsph_jax import config
+from mlsph_jax.cases import build_problem
+from mlsph_jax.errors import SimulationError
+from mlsph_jax.simulation import run_problem
+
+TEXT = open(sys.argv[1]).read()
+out = {}
+for name, devices, dec in (("one", 1, "index"), ("spatial", 2, "spatial")):
+    over = ["time.t_end=0.02", "scheme.frame=eulerian", "scheme.limiter=none", f"run.devices={devices}",
+            f"run.decomposition={dec}", "output.plots=false", "output.progress=false"]
+    cfg = config.loads(TEXT, [*over, "scheme.reconstruction_degree=0"])
+    res = run_problem(build_problem(cfg), cfg, quiet=True)
+    out[name] = {k: np.asarray(getattr(res.particles, k)).tolist() for k in ("x", "vol", "q", "kind")} | {
+        "n_steps": res.summary["n_steps"], "t": res.summary["t_final"]}
+    cfg = config.loads(TEXT, over)
+    try:
+        run_problem(build_problem(cfg), cfg, quiet=True)
+    except SimulationError as e:
+        out[name]["failure"] = [str(e), e.step, e.particle]
+print("RESULT" + json.dumps(out))
+"""
+
+
+def test_spatial_decomposition_with_frozen_ends_and_a_failure_in_1d():
+    """1D, FROZEN particles beyond both ends: the spatial run ends with the one-device state,
+    and a run that fails reports the same step and the same (original) particle index."""
+    out = _python("import sys\n" + SOD, str(ROOT / "configs" / "sod_ideal_gas.toml"), devices=2)
+    one, sp = out["one"], out["spatial"]
+    assert 3 in one["kind"]   # Kind.FROZEN
+    _assert_same(one, sp)
+    assert one["failure"][1:] == sp["failure"][1:] and one["failure"][2] >= 0
+    assert one["failure"][0] == sp["failure"][0]
