@@ -37,7 +37,7 @@ particle order and :meth:`SpatialSharding.gather` returns them in it.
 Supported: Eulerian frames (the neighbour list and geometry fixed for the whole run), periodic
 boxes, mirror-ghost walls, frozen particles.  Refused (``InputError`` naming the key): moving
 frames (``scheme.frame``), MOOD (``scheme.limiter``), boundary-integral walls
-(``boundary.kind``), local time stepping (``time.local_time_stepping``), and the differentiated
+(``case.walls``), local time stepping (``time.local_time_stepping``), and the differentiated
 and diffrax run paths (:func:`refuse_in`), which run on one device.
 """
 
@@ -93,9 +93,10 @@ def check_spatial(scheme, boundary, *, local_time_stepping: bool = False):
                          f"not built for the spatial decomposition; {ok}scheme.limiter=\"none\" (or "
                          "run.decomposition=\"index\")")
     if boundary is not None and not isinstance(boundary, MirrorWalls):
-        raise InputError(f"invalid boundary.kind (a {type(boundary).__name__} wall treatment) with "
-                         f"run.decomposition=\"spatial\": {ok}no walls or boundary.kind=\"mirror_ghosts\" (or "
-                         "run.decomposition=\"index\")")
+        what = ("case.walls=\"boundary_integral\"" if getattr(boundary, "wall_terms", None) is not None
+                else f"walls of type {type(boundary).__name__}")
+        raise InputError(f"invalid {what} with run.decomposition=\"spatial\": {ok}no walls or "
+                         "case.walls=\"mirror_ghosts\" (or run.decomposition=\"index\")")
     if local_time_stepping:
         raise InputError("invalid time.local_time_stepping=true with run.decomposition=\"spatial\"; "
                          f"{ok}time.local_time_stepping=false (or run.decomposition=\"index\")")

@@ -348,7 +348,7 @@ def test_spatial_decomposition_refuses_what_it_does_not_support():
         (base, ["scheme.limiter=mood"], r'scheme\.limiter=.mood. with run\.decomposition="spatial".*allowed'),
         (base, ["time.local_time_stepping=true"], r"time\.local_time_stepping=true with run\.decomposition"),
         ('[case]\nname = "lid_driven_cavity"\nn = 8\n', ["case.walls=boundary_integral"],
-         r'boundary\.kind.*with run\.decomposition="spatial".*mirror_ghosts'),
+         r'invalid case\.walls="boundary_integral" with run\.decomposition="spatial".*case\.walls="mirror_ghosts"'),
         (base, ["run.devices=64"], r"run\.devices=64: only 1 device\(s\) available"),
     ]
     for text, over, msg in cases:
