@@ -80,7 +80,7 @@ jax.distributed.initialize(coordinator_address="127.0.0.1:" + sys.argv[2], num_p
                            process_id=int(sys.argv[1]))
 assert len(jax.devices()) == 2 and len(jax.local_devices()) == 1
 """ + CASE + """
-res, _ = run(2)
+res, _ = run(2, decomposition=sys.argv[-2])
 print("RESULT" + json.dumps(fields(res)))
 """
 
@@ -207,14 +207,28 @@ def _free_port() -> int:
 def test_two_processes_with_jax_distributed_give_the_one_device_numbers(two_devices):
     """Two processes on localhost, one CPU device each, joined by jax.distributed.initialize
     (cross-process collectives: gloo); both end with the whole state of the one-device run."""
+    for out in _distributed("index"):
+        assert out["devices"] == 2
+        _assert_same(two_devices["one"], out)
+
+
+def _distributed(decomposition: str) -> list[dict]:
     port = str(_free_port())
-    procs = [_python(DISTRIBUTED, str(i), port, "eulerian", background=True) for i in range(2)]
+    procs = [_python(DISTRIBUTED, str(i), port, decomposition, "eulerian", background=True) for i in range(2)]
     outs = []
     for p in procs:
         stdout, stderr = p.communicate(timeout=600)
         outs.append(_result(p.returncode, stdout, stderr))
-    for out in outs:
-        assert out["devices"] == 2
+    return outs
+
+
+@pytest.mark.slow
+def test_two_processes_with_the_spatial_decomposition_give_the_one_device_numbers(two_devices):
+    """The spatial decomposition across two processes (jax.distributed, one CPU device each):
+    the halo ppermute crosses the processes; both end with the whole one-device state in the
+    original particle order."""
+    for out in _distributed("spatial"):
+        assert out["devices"] == 2 and out["decomposition"]["kind"] == "spatial"
         _assert_same(two_devices["one"], out)
 
 
@@ -234,7 +248,7 @@ from mlsph_jax.simulation import run_problem
 TEXT = '[case]\\nname = "lid_driven_cavity"\\nn = 10\\n[output]\\nplots = false\\nprogress = false\\n'
 out = {}
 for name, devices, dec in (("one", 1, "index"), ("spatial", 2, "spatial")):
-    cfg = config.loads(TEXT, ["time.t_end=0.04", "time.chunk=8", f"run.devices={devices}",
+    cfg = config.loads(TEXT, ["time.t_end=0.02", "time.chunk=8", f"run.devices={devices}",
                               f"run.decomposition={dec}"])
     res = run_problem(build_problem(cfg), cfg, quiet=True)
     out[name] = {k: np.asarray(getattr(res.particles, k)).tolist() for k in ("x", "vol", "q")} | {
