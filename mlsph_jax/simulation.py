@@ -111,7 +111,12 @@ MAX_REGROWTHS = 8
 
 
 class Simulation:
-    """Runs a :class:`Problem` with SSP-RK3 in jitted chunks (one compilation per case)."""
+    """Runs a :class:`Problem` with SSP-RK3 in jitted chunks (one compilation per case).
+
+    ``devices``/``decomposition`` (``run.devices``, ``run.decomposition``): several devices as
+    index ranges (:mod:`mlsph_jax.sharding`, ``"index"``, the default) or, for Eulerian runs, as
+    Morton-ordered regions with a halo exchanged inside ``jax.shard_map`` (:mod:`mlsph_jax.spatial`,
+    ``"spatial"``); either way the results are in the original particle order."""
 
     def __init__(self, problem: Problem, *, cfl: float = 0.3, dt: float = 0.0, chunk: int = 50,
                  max_steps: int = 1_000_000, dt_min: float = 1e-14, headroom: float = 1.3,
