@@ -74,16 +74,9 @@ MOOD_STATS = ("flagged_fraction_max", "flagged_fraction_sum", "rhs_evaluations",
 
 def cfl_dt(particles: Particles, params: Params, scheme: Scheme, cfl: float, cfl_viscous: float = 0.125):
     """C min_i V_i^(1/d) / (|u_i - w_i| + c_i) over fluid particles (SPEC §7.1), and with viscous
-    (heat) fluxes also C_v min_i rho_i dx_i^2 / mu (kappa) (explicit diffusion limit)."""
-    dt = cfl * jnp.min(_local_dt(particles, params, scheme))
-    if scheme.viscous or scheme.heat_conduction:
-        rho = particles.q[:, 0] / particles.vol
-        dx2 = particles.vol ** (2.0 / particles.dim)
-        diff = _diffusivity(particles, params, scheme)
-        fluid = particles.kind == Kind.FLUID
-        dtv = jnp.min(jnp.where(fluid, rho * dx2, jnp.inf)) / diff
-        dt = jnp.minimum(dt, cfl_viscous * dtv)
-    return dt
+    (heat) fluxes also C_v min_i rho_i dx_i^2 / mu (kappa) (explicit diffusion limit): the
+    smallest of the per-particle limits of :func:`particle_limits`."""
+    return jnp.min(particle_limits(particles, params, scheme, cfl, cfl_viscous))
 
 
 def _diffusivity(particles: Particles, params: Params, scheme: Scheme):
@@ -96,22 +89,28 @@ def _diffusivity(particles: Particles, params: Params, scheme: Scheme):
     return jnp.maximum(diff, tiny(diff.dtype))
 
 
-def local_steps(particles: Particles, params: Params, scheme: Scheme, cfl: float, cfl_viscous: float = 0.125,
-                geom: Geometry | None = None, ratio: float | None = None):
-    """Per-particle time steps of local time stepping (decision 62): for each fluid particle
-    its own limits of :func:`cfl_dt`, C dx_i / (|u_i - w_i| + c_i) and, with viscous (heat)
-    fluxes, C_v rho_i dx_i^2 / max(mu, kappa); with ``geom`` the smallest of these over the
-    particle's stencil, and with ``ratio`` at most ``ratio`` times the smallest step; 0 for every
-    other particle (never updated).  Their minimum is :func:`cfl_dt`.  A steady state of the
-    semi-discrete system is a fixed point of the step whatever the steps are, so a steady run
-    converges to the same state in fewer steps where the particle sizes are graded; the
-    transient is not time-accurate."""
+def particle_limits(particles: Particles, params: Params, scheme: Scheme, cfl: float, cfl_viscous: float = 0.125):
+    """Each fluid particle's explicit step limit, min(C dx_i / (|u_i - w_i| + c_i), C_v rho_i
+    dx_i^2 / max(mu, kappa)) (the second only with viscous or heat fluxes); +inf for every other
+    particle.  :func:`cfl_dt` is their minimum, :func:`local_steps` starts from them."""
     dt = cfl * _local_dt(particles, params, scheme)
     if scheme.viscous or scheme.heat_conduction:
         rho = particles.q[:, 0] / particles.vol
         dx2 = particles.vol ** (2.0 / particles.dim)
         dt = jnp.minimum(dt, cfl_viscous * rho * dx2 / _diffusivity(particles, params, scheme))
-    dt = jnp.where(particles.kind == Kind.FLUID, dt, jnp.inf)
+    return jnp.where(particles.kind == Kind.FLUID, dt, jnp.inf)
+
+
+def local_steps(particles: Particles, params: Params, scheme: Scheme, cfl: float, cfl_viscous: float = 0.125,
+                geom: Geometry | None = None, ratio: float | None = None):
+    """Per-particle time steps of local time stepping (decision 62): for each fluid particle
+    its own limit of :func:`particle_limits` (whose minimum is :func:`cfl_dt`); with ``geom``
+    the smallest of these over the particle's stencil, and with ``ratio`` at most ``ratio`` times
+    the smallest step; 0 for every other particle (never updated).  A steady state of the
+    semi-discrete system is a fixed point of the step whatever the steps are, so a steady run
+    converges to the same state in fewer steps where the particle sizes are graded; the
+    transient is not time-accurate."""
+    dt = particle_limits(particles, params, scheme, cfl, cfl_viscous)
     if geom is not None:   # the smallest over the stencil: a pair's two ends advance alike
         dt = jnp.minimum(dt, jnp.min(jnp.where(geom.mask, dt[geom.jsafe], jnp.inf), axis=1))
     if ratio is not None:  # at most ``ratio`` times the smallest step

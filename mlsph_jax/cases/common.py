@@ -43,6 +43,14 @@ def walls_key(which: str) -> Key:
                    "\"mlsph_ale\"; docs/architecture.md decision 54)")
 
 
+def steady_tol_key(default: float) -> Key:
+    """``case.steady_tol``: the residual-based stop of steady cases (:class:`~mlsph_jax.simulation.Problem`
+    ``steady_tol``), one definition for the cavity and the cylinder."""
+    return Key(float, default, minimum=0.0,
+               doc="stop early once max|u(t2) - u(t1)| / max|u| / (t2 - t1) between two output "
+                   "times is below this (1/s; 0 = always run to time.t_end)")
+
+
 def walls_problems(cfg: Mapping) -> list[str]:
     """Cross-check of ``case.walls``: the boundary integral needs MLS shape functions."""
     walls, method = cfg["case"]["walls"], cfg["scheme"]["method"]

@@ -71,7 +71,7 @@ from ..schema import Key, join_problems, show
 from ..simulation import Problem
 from ..state import Domain, Kind, Params, Particles, make_particles
 from .base import register_case
-from .common import params_from_config, scheme_from_config
+from .common import params_from_config, scheme_from_config, steady_tol_key
 from .layouts import polar_layout, polar_ring_edges
 
 #: Free-stream density and speed (the scales of the coefficients).
@@ -172,9 +172,7 @@ CYLINDER_KEYS: dict[str, Key] = {
     "r_far": Key(float, 40.0, minimum=0.0, exclusive_minimum=True, unit="m",
                  doc="outer radius of the fluid region (frozen free-stream rings beyond it); "
                      "thesis setup: 40 with n_theta = 120 (10,800 particles)"),
-    "steady_tol": Key(float, 1e-3, minimum=0.0,
-                      doc="stop once max|u(t2) - u(t1)| / max|u| / (t2 - t1) between two output "
-                          "times is below this (1/s; 0 = always run to time.t_end)"),
+    "steady_tol": steady_tol_key(1e-3),
 }
 
 

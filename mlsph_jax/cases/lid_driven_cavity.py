@@ -76,7 +76,7 @@ from ..simulation import Problem
 from ..state import Domain, Kind, Params, Particles, make_particles
 from .base import register_case
 from .channel_flows import lattice
-from .common import params_from_config, scheme_from_config, setup_walls, walls_key, walls_problems
+from .common import params_from_config, scheme_from_config, setup_walls, steady_tol_key, walls_key, walls_problems
 
 # --- config schema: the [case] keys and cross-checks (mlsph_jax.config validates with them) ---------
 
@@ -130,9 +130,7 @@ LID_DRIVEN_CAVITY_KEYS: dict[str, Key] = {
               doc="Reynolds number Re = rho0 u_lid L / mu (sets physics.mu); Ghia et al. "
                   "(1982) centre-line data exist for 100, 400 and 1000"),
     "walls": walls_key("the four walls (boundary integral: decision 61 for the corners)"),
-    "steady_tol": Key(float, 2e-3, minimum=0.0,
-                      doc="stop early once max|u(t2) - u(t1)| / max|u| / (t2 - t1) between two "
-                          "output times is below this (1/s; 0 = always run to time.t_end)"),
+    "steady_tol": steady_tol_key(2e-3),
 }
 
 
