@@ -58,6 +58,7 @@ from .approximation import block_remat
 from .errors import InputError
 from .integrate import fixed_boundary, ssp_rk3_step, step_status
 from .run import cfl_limit, check_fixed_step, default_steps, setup_run
+from .spatial import refuse_in
 from .state import Kind, Params, Particles
 from .status import Status, failure, state_status
 
@@ -138,6 +139,7 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
     """
     if checkpoint not in CHECKPOINTS:
         raise InputError(f"invalid checkpoint={checkpoint!r}; allowed: {', '.join(CHECKPOINTS)}")
+    refuse_in(problem, "the differentiated runs (mlsph_jax.differentiable, mlsph sensitivity / calibrate)")
     t_end = float(problem.t_end if t_end is None else t_end)
     n_steps = default_steps(problem, cfl=cfl, cfl_viscous=cfl_viscous, t_end=t_end) if n_steps is None \
         else int(n_steps)

@@ -65,6 +65,7 @@ from .errors import InputError, NeighborOverflowError, SimulationError
 from .integrate import cfl_dt, cfl_limiting_particle, make_stage_geometry
 from .rhs import geometry, rhs
 from .run import check_fixed_step, default_steps, setup_run
+from .spatial import refuse_in
 from .state import Kind, Params, Particles
 from .status import Status, combine, state_status
 
@@ -144,6 +145,7 @@ def neighbor_setup(problem, nspec_or_nl=None, *, headroom: float = 1.6, particle
 
 
 def _check_scheme(problem):
+    refuse_in(problem, "the diffrax path")
     if problem.scheme.component("limiter").acts_on_substeps:
         raise InputError("invalid scheme.limiter='mood' for the diffrax path: MOOD limits the forward-Euler "
                          "sub-steps of SSP-RK3 and has no ODE form; allowed: 'none' (or use "

@@ -78,11 +78,12 @@ def _zero_gradient_possible(scheme) -> tuple[bool, bool]:
     return area, True
 
 
-def step_fractions(degree, kind, scheme):
+def step_fractions(degree, kind, scheme, count=jnp.sum):
     """Fractions (:data:`STATS`) of the fluid particles for the per-particle ``degree[N, 2]``
-    (traceable; -1, not evaluated, counts as neither)."""
+    (traceable; -1, not evaluated, counts as neither; ``count(mask)``: the number of particles
+    where ``mask`` holds, over every shard of a spatially decomposed run)."""
     fluid = kind == Kind.FLUID
-    n = jnp.maximum(jnp.sum(fluid), 1)
+    n = jnp.maximum(count(fluid), 1)
     out = []
     for col, nominal, zero_ok in zip((AREA, FIT), nominal_degrees(scheme), _zero_gradient_possible(scheme),
                                      strict=True):
@@ -90,8 +91,8 @@ def step_fractions(degree, kind, scheme):
         if nominal is None:
             out += [jnp.zeros(()), jnp.zeros(())]
             continue
-        out.append(jnp.sum(fluid & (d >= 0) & (d < nominal)) / n)
-        out.append(jnp.sum(fluid & (d == 0)) / n if zero_ok else jnp.zeros(()))
+        out.append(count(fluid & (d >= 0) & (d < nominal)) / n)
+        out.append(count(fluid & (d == 0)) / n if zero_ok else jnp.zeros(()))
     return jnp.stack(out).astype(jnp.float64)
 
 

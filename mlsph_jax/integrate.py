@@ -30,9 +30,9 @@ from .scheme import Scheme
 from .state import Domain, Kind, Params, Particles, tiny
 from .status import Status, combine, state_status
 
-__all__ = ["MOOD_STATS", "Carry", "Status", "StepControl", "cfl_dt", "cfl_limiting_particle", "initial_carry",
-           "local_steps", "make_chunk", "make_stage_geometry", "make_verlet_stage_geometry", "ssp_rk3_step",
-           "state_status", "static_geometry", "step_status"]
+__all__ = ["MOOD_STATS", "Carry", "LocalOps", "Status", "StepControl", "cfl_dt", "cfl_limiting_particle",
+           "initial_carry", "local_steps", "make_chunk", "make_stage_geometry", "make_verlet_stage_geometry",
+           "ssp_rk3_step", "state_status", "static_geometry", "step_status"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -280,11 +280,12 @@ def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, boun
     return res if cache is None else (*res, cache)
 
 
-def _mood_stats(stats, p: Particles, scheme: Scheme):
-    """This step's contribution to ``Carry.mood`` (see :data:`MOOD_STATS`)."""
+def _mood_stats(stats, p: Particles, scheme: Scheme, count=jnp.sum):
+    """This step's contribution to ``Carry.mood`` (see :data:`MOOD_STATS`; ``count(mask)``: the
+    number of particles where ``mask`` holds, :meth:`LocalOps.count`)."""
     ppd, n_evals, unresolved = stats[:3]
     fluid = p.kind == Kind.FLUID
-    demoted = jnp.sum(fluid & (ppd < scheme.reconstruction_degree)) / jnp.maximum(jnp.sum(fluid), 1)
+    demoted = count(fluid & (ppd < scheme.reconstruction_degree)) / jnp.maximum(count(fluid), 1)
     return jnp.stack([demoted, demoted, n_evals.astype(demoted.dtype), unresolved.astype(demoted.dtype)])
 
 
@@ -345,8 +346,29 @@ def fixed_boundary(boundary, scheme: Scheme, p: Particles, params: Params):
     return boundary.fix(p, params)
 
 
+class LocalOps:
+    """The cross-particle operations of a step when one program sees every particle (one
+    device, or the index-sharded run whose partitioner inserts the communication).  The spatial
+    decomposition replaces them by collectives (:class:`mlsph_jax.spatial.Collectives`)."""
+
+    def __init__(self, boundary=None):
+        self.boundary = boundary
+
+    def min(self, x):
+        """Global minimum of a value already reduced over this program's particles."""
+        return x
+
+    def count(self, mask):
+        """Number of particles where ``mask`` holds."""
+        return jnp.sum(mask)
+
+    def status(self, bits, bad):
+        """Global status bits and offending particle (original index)."""
+        return bits, bad
+
+
 def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: int, nspec=None, boundary=None,
-               sharding=None, skin: float = verlet.VERLET_SKIN):
+               sharding=None, skin: float = verlet.VERLET_SKIN, spatial=None):
     """Build ``chunk(carry, params, static_geom, t_stop, step_stop=None) -> carry`` running ``n_steps``
     steps (steps once ``carry.t`` reaches ``t_stop`` or ``carry.step`` reaches ``step_stop`` are no-ops:
     ``time.max_steps`` is exact).
@@ -358,15 +380,14 @@ def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: in
     0 = rebuild every stage; the same lists either way).  ``sharding`` (a
     :class:`mlsph_jax.sharding.ParticleSharding`, multi-device runs) pins the layout of the
     carry and the geometry to the particle-axis sharding at entry and exit; the partitioner
-    does the rest.
+    does the rest.  ``spatial`` (a :class:`mlsph_jax.spatial.SpatialSharding`, Eulerian runs):
+    the chunk runs per shard inside ``jax.shard_map`` on the local layout, ``static_geom`` is a
+    :class:`mlsph_jax.spatial.SpatialGeometry`, and the halo exchange and the reductions are
+    explicit collectives.
     """
 
-    boundary0 = boundary
-
-    def chunk(carry: Carry, params: Params, static_geom, t_stop, step_stop=None):
-        if sharding is not None:
-            carry, static_geom = sharding.constrain((carry, static_geom))
-        boundary = fixed_boundary(boundary0, scheme, carry.particles, params)
+    def steps(carry: Carry, params: Params, static_geom, t_stop, step_stop, ops):
+        boundary = ops.boundary
         cache = None
         if not scheme.moving:
             geom_fn = lambda p: static_geom  # noqa: E731
@@ -385,7 +406,7 @@ def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: in
             def advance(cv):
                 c, v = cv
                 dt = (jnp.asarray(control.dt_fixed) if control.dt_fixed > 0
-                      else cfl_dt(c.particles, params, scheme, control.cfl, control.cfl_viscous))
+                      else ops.min(cfl_dt(c.particles, params, scheme, control.cfl, control.cfl_viscous)))
                 remaining = t_stop - c.t
                 last = dt >= remaining
                 if control.local:   # each particle its own step, all cut by the same factor at an output time
@@ -396,16 +417,17 @@ def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: in
                 dt = jnp.minimum(dt, remaining)
                 newp, overflow, stats, *vs = ssp_rk3_step(c.particles, params, steps if control.local else dt,
                                                           scheme, geom_fn, boundary, v)
-                st, bad = step_status(c.particles, newp, params, scheme, dt, overflow, stats,
-                                      dt_fixed=control.dt_fixed > 0, cfl=control.cfl,
-                                      cfl_viscous=control.cfl_viscous, dt_min=control.dt_min, last=last,
-                                      boundary=boundary)
+                st, bad = ops.status(*step_status(c.particles, newp, params, scheme, dt, overflow, stats,
+                                                  dt_fixed=control.dt_fixed > 0, cfl=control.cfl,
+                                                  cfl_viscous=control.cfl_viscous, dt_min=control.dt_min,
+                                                  last=last, boundary=boundary))
                 ok = st == Status.OK
                 keep = lambda new, old: jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, old)
                 t_new = jnp.where(last, t_stop, c.t + dt)
-                inc = _mood_stats(stats, newp, scheme)
+                inc = _mood_stats(stats, newp, scheme, ops.count)
                 mood = jnp.where(ok, c.mood.at[0].set(jnp.maximum(c.mood[0], inc[0])).at[1:].add(inc[1:]), c.mood)
-                fb = fallback.update_stats(c.fallback, fallback.step_fractions(stats[4], c.particles.kind, scheme))
+                fb = fallback.update_stats(c.fallback, fallback.step_fractions(stats[4], c.particles.kind, scheme,
+                                                                               ops.count))
                 return (Carry(keep(newp, c.particles), jnp.where(ok, t_new, c.t),
                               c.step + ok.astype(c.step.dtype), st, jnp.where(ok, c.bad_particle, bad),
                               jnp.where(ok, dt, c.dt_last), mood, jnp.where(ok, stats[4], c.degree),
@@ -415,6 +437,26 @@ def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: in
             return jax.lax.cond(active, advance, lambda cv: cv, (c, v)), None
 
         (out, _), _ = jax.lax.scan(one, (carry, cache), None, length=n_steps)
+        return out
+
+    if spatial is not None:
+        from .spatial import Collectives, shard_chunk
+
+        shifts = spatial.layout.shifts
+
+        def local(carry, params, tables, t_stop, step_stop):
+            ops = Collectives(tables, spatial.devices, shifts, boundary)
+            return steps(carry, params, tables.geom, t_stop, step_stop, ops)
+
+        spmd = shard_chunk(local, spatial)
+        return jax.jit(lambda carry, params, sgeom, t_stop, step_stop=None: spmd(carry, params, sgeom, t_stop,
+                                                                                step_stop))
+
+    def chunk(carry: Carry, params: Params, static_geom, t_stop, step_stop=None):
+        if sharding is not None:
+            carry, static_geom = sharding.constrain((carry, static_geom))
+        out = steps(carry, params, static_geom, t_stop, step_stop,
+                    LocalOps(fixed_boundary(boundary, scheme, carry.particles, params)))
         return out if sharding is None else sharding.constrain(out)
 
     return jax.jit(chunk)

@@ -125,10 +125,14 @@ class RunSetup:
     # --- compilation ------------------------------------------------------------------------
     def make_chunk(self, control: integrate.StepControl, n_steps: int, sharding=None):
         """Jitted ``chunk(carry, params, static_geom, t_stop)`` of :func:`mlsph_jax.integrate.make_chunk`
-        (``sharding``: the :class:`mlsph_jax.sharding.ParticleSharding` of a multi-device run)."""
+        (``sharding``: the :class:`mlsph_jax.sharding.ParticleSharding` or
+        :class:`mlsph_jax.spatial.SpatialSharding` of a multi-device run)."""
+        from .spatial import SpatialSharding
+
+        spatial = sharding if isinstance(sharding, SpatialSharding) else None
         return integrate.make_chunk(self.scheme, self.domain, control, n_steps,
                                     nspec=self.nspec if self.moving else None, boundary=self.boundary,
-                                    sharding=sharding)
+                                    sharding=None if spatial else sharding, spatial=spatial)
 
     # --- regrowth -----------------------------------------------------------------------------
     def regrow(self, particles: Particles, status) -> RunSetup:

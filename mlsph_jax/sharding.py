@@ -32,7 +32,7 @@ from jax.sharding import PartitionSpec as P
 
 from .errors import InputError
 
-__all__ = ["AXIS", "ParticleSharding", "available_devices", "particle_sharding"]
+__all__ = ["AXIS", "ParticleSharding", "available_devices", "check_devices", "particle_sharding"]
 
 #: Name of the mesh axis the particles are sharded over.
 AXIS = "particles"
@@ -43,12 +43,9 @@ def available_devices() -> int:
     return len(jax.devices())
 
 
-def particle_sharding(devices: int, n_particles: int, *, name: str = "run.devices") -> ParticleSharding | None:
-    """The :class:`ParticleSharding` of ``devices`` devices for ``n_particles`` particles, or
-    ``None`` for one device (the unsharded run).  ``devices = 0`` selects every available device.
-
-    Refused (``InputError`` naming ``name`` and the value): a negative count, more devices than
-    :func:`available_devices`, a count that does not divide the particle count."""
+def check_devices(devices, *, name: str = "run.devices") -> int:
+    """The device count ``devices`` asks for (``0``: every available device), refused
+    (``InputError`` naming ``name`` and the value) if negative or above :func:`available_devices`."""
     if isinstance(devices, bool) or not isinstance(devices, int | np.integer) or devices < 0:
         raise InputError(f"invalid {name}={devices!r}; allowed: an int >= 0 (0 = every available device, "
                          f"{available_devices()} here)")
@@ -59,6 +56,17 @@ def particle_sharding(devices: int, n_particles: int, *, name: str = "run.device
             f"invalid {name}={devices}: only {avail} device(s) available ({jax.devices()[0].platform}); allowed: "
             f"1..{avail} (on a CPU, more host devices need XLA_FLAGS=--xla_force_host_platform_device_count={d} "
             "set before jax is imported; across hosts, jax.distributed.initialize first)")
+    return d
+
+
+def particle_sharding(devices: int, n_particles: int, *, name: str = "run.devices") -> ParticleSharding | None:
+    """The :class:`ParticleSharding` of ``devices`` devices for ``n_particles`` particles, or
+    ``None`` for one device (the unsharded run).  ``devices = 0`` selects every available device.
+
+    Refused (``InputError`` naming ``name`` and the value): a negative count, more devices than
+    :func:`available_devices`, a count that does not divide the particle count."""
+    d = check_devices(devices, name=name)
+    avail = available_devices()
     if n_particles % d:
         ok = [k for k in range(1, avail + 1) if n_particles % k == 0]
         raise InputError(

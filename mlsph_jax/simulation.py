@@ -46,7 +46,8 @@ from .errors import DegreeFallbackWarning, InputError, NeighborOverflowError, Ru
 from .integrate import MOOD_STATS, Carry, StepControl, initial_carry
 from .run import RunSetup, setup_run
 from .scheme import Scheme
-from .sharding import particle_sharding
+from .sharding import check_devices, particle_sharding
+from .spatial import DECOMPOSITIONS, check_spatial, list_key, spatial_sharding
 from .state import Domain, Kind, Params, Particles, with_precision
 from .status import Status
 from .status import failure as status_failure
@@ -110,22 +111,39 @@ MAX_REGROWTHS = 8
 
 
 class Simulation:
-    """Runs a :class:`Problem` with SSP-RK3 in jitted chunks (one compilation per case)."""
+    """Runs a :class:`Problem` with SSP-RK3 in jitted chunks (one compilation per case).
+
+    ``devices``/``decomposition`` (``run.devices``, ``run.decomposition``): several devices as
+    index ranges (:mod:`mlsph_jax.sharding`, ``"index"``, the default) or, for Eulerian runs, as
+    Morton-ordered regions with a halo exchanged inside ``jax.shard_map`` (:mod:`mlsph_jax.spatial`,
+    ``"spatial"``); either way the results are in the original particle order."""
 
     def __init__(self, problem: Problem, *, cfl: float = 0.3, dt: float = 0.0, chunk: int = 50,
                  max_steps: int = 1_000_000, dt_min: float = 1e-14, headroom: float = 1.3,
                  cfl_viscous: float = 0.125, devices: int = 1, precision: str = "float64",
                  local_time_stepping: bool = False, local_step_ratio: float = 4.0,
-                 moving_headroom: float = 0.0):
+                 moving_headroom: float = 0.0, decomposition: str = "index"):
         #: precision of the state, parameters and geometry (``run.precision``): the problem is
         #: cast once here, so the chunk traces (and the result holds) that precision
         self.precision = precision
         problem = dataclasses.replace(problem, particles=with_precision(problem.particles, precision),
                                       params=with_precision(problem.params, precision))
         self.problem = problem
+        if decomposition not in DECOMPOSITIONS:
+            raise InputError(f"invalid run.decomposition={decomposition!r}; allowed: "
+                             + ", ".join(map(repr, DECOMPOSITIONS)))
+        #: ``run.decomposition``: "index" (index ranges, the partitioner communicates) or "spatial"
+        #: (:mod:`mlsph_jax.spatial`: Morton-ordered shards with halos, Eulerian runs)
+        self.decomposition = decomposition
+        self.spatial = decomposition == "spatial"
+        if self.spatial:
+            check_spatial(problem.scheme, problem.boundary, local_time_stepping=local_time_stepping)
+            self._devices = devices
+            check_devices(devices)
         #: particle-axis sharding over ``devices`` devices (``None``: one device; see
-        #: :mod:`mlsph_jax.sharding`, the ``run.devices`` setting)
-        self.sharding = particle_sharding(devices, problem.particles.n)
+        #: :mod:`mlsph_jax.sharding`, the ``run.devices`` setting); the spatial decomposition's
+        #: (:class:`mlsph_jax.spatial.SpatialSharding`) is made with the neighbour list below
+        self.sharding = None if self.spatial else particle_sharding(devices, problem.particles.n)
         why = local_time_stepping_conflict(dt, problem.scheme.frame)
         if local_time_stepping and why:
             raise InputError(f"invalid time.local_time_stepping=true: {why}; allowed: {LOCAL_TIME_STEPPING_ALLOWED}")
@@ -147,6 +165,8 @@ class Simulation:
         #: one entry per neighbour regrowth: the cause and the limits before and after
         self.regrowth_log: list[dict] = []
         self.setup: RunSetup = setup_run(problem, headroom=headroom, min_moving_headroom=self.moving_headroom)
+        if self.spatial:
+            self.sharding = spatial_sharding(devices, np.asarray(problem.particles.x), self.setup.nl, problem.boundary)
         self._build()
 
     @property
@@ -163,7 +183,17 @@ class Simulation:
 
     def _geom(self, p: Particles):
         self.setup, geom = self.setup.host_geometry(self._host(p))
-        return self._place(geom)
+        if not self.spatial or self.sharding is None:
+            return self._place(geom)
+        if list_key(self.setup.nl) != self.sharding.idx_key:    # a regrown list: a new layout
+            self.sharding = spatial_sharding(self._devices, np.asarray(p.x), self.setup.nl, self.problem.boundary)
+            self._build()
+        return self.sharding.place_geometry(geom, self.problem.boundary)
+
+    def _relayout(self, carry: Carry) -> Carry:
+        """The spatial decomposition's carry in its local layout (original order in, see
+        :meth:`mlsph_jax.spatial.SpatialSharding.place`); unchanged otherwise."""
+        return self.sharding.place(carry) if self.spatial and self.sharding is not None else carry
 
     def _place(self, tree):
         """``tree`` on the run's devices (sharded over the particle axis on several)."""
@@ -264,6 +294,7 @@ class Simulation:
             geom = self._geom(carry.particles.replace(x=jnp.asarray(geom_src[0]), vol=jnp.asarray(geom_src[1])))
         else:
             geom = self._geom(carry.particles)
+        carry = self._relayout(carry)
         if writer and not restart:   # degrees at t = 0: the Eulerian geometry's (moving particles: -1, no step yet)
             deg0 = carry.degree if geom is None else self._host(geom.degree)
             writer.write(0.0, {**snapshot_fields(pb.particles, pb.params, pb.scheme),
@@ -324,6 +355,8 @@ class Simulation:
                         t = float(carry.t)
                         bar.update(t, int(carry.step))
                         if st & Status.NEIGHBOR_OVERFLOW:  # (other bits may be its consequences)
+                            if self.spatial:
+                                carry = self._host(carry)
                             try:
                                 self._regrow(dataclasses.replace(carry, particles=self._host(carry.particles)), st)
                             except NeighborOverflowError as e:
@@ -334,6 +367,7 @@ class Simulation:
                             if not pb.scheme.moving:
                                 geom_src = (np.asarray(carry.particles.x), np.asarray(carry.particles.vol))
                             geom = self._geom(carry.particles)
+                            carry = self._relayout(carry)
                             continue
                         if st != Status.OK:
                             host_carry = dataclasses.replace(carry, particles=self._host(carry.particles))
@@ -396,6 +430,8 @@ class Simulation:
         )
         if restarted_from is not None:
             summary["restarted_from"] = restarted_from
+        if self.spatial and self.sharding is not None:
+            summary["decomposition"] = self.sharding.info()
         if pb.scheme.component("limiter").summary_key == "mood":
             summary["mood"] = mood_summary(carry)
         if any(d is not None for d in fallback.nominal_degrees(pb.scheme)):
@@ -620,7 +656,8 @@ def run_problem(problem: Problem, cfg: Mapping | None = None, out_dir=None, quie
                      precision=(cfg or {}).get("run", {}).get("precision", "float64"),
                      local_time_stepping=tcfg.get("local_time_stepping", False),
                      local_step_ratio=tcfg.get("local_step_ratio", 4.0),
-                     moving_headroom=(cfg or {}).get("scheme", {}).get("moving_neighbor_headroom", 0.0))
+                     moving_headroom=(cfg or {}).get("scheme", {}).get("moving_neighbor_headroom", 0.0),
+                     decomposition=(cfg or {}).get("run", {}).get("decomposition", "index"))
     return sim.run(out_dir, snapshots=ocfg.get("snapshots", 10), progress=ocfg.get("progress", True) and not quiet,
                    plots=ocfg.get("plots", True), overwrite=overwrite, restart=restart,
                    degree_fallback_warn=ocfg.get("degree_fallback_warn", fallback.DEFAULT_WARN))

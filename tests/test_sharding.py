@@ -38,8 +38,9 @@ from mlsph_jax.simulation import Simulation, run_problem
 TEXT = '[case]\\nname = "taylor_green_2d"\\nn = 12\\n[output]\\nplots = false\\nprogress = false\\n'
 OVER = [f"scheme.frame={sys.argv[-1]}", "time.t_end=0.02", "time.chunk=4"]
 
-def run(devices, capacity=None, precision="float64"):
-    cfg = config.loads(TEXT, [*OVER, f"run.devices={devices}", f"run.precision={precision}"])
+def run(devices, capacity=None, precision="float64", decomposition="index"):
+    cfg = config.loads(TEXT, [*OVER, f"run.devices={devices}", f"run.precision={precision}",
+                              f"run.decomposition={decomposition}"])
     pb = build_problem(cfg)
     if capacity is None:
         return run_problem(pb, cfg, quiet=True), []
@@ -51,7 +52,8 @@ def run(devices, capacity=None, precision="float64"):
 def fields(res):
     return {k: np.asarray(getattr(res.particles, k)).tolist() for k in ("x", "vol", "q")} | {
         "n_steps": res.summary["n_steps"], "t": res.summary["t_final"], "devices": res.summary["devices"],
-        "metrics": res.summary["metrics"]}
+        "metrics": res.summary["metrics"], "decomposition": res.summary.get("decomposition"),
+        "conservation": res.summary["conservation"]}
 """
 
 TWO_DEVICES = CASE + """
@@ -62,6 +64,8 @@ if sys.argv[-1] != "eulerian":
 for name, devices, cap, precision in runs:
     res, log = run(devices, cap, precision)
     out[name] = fields(res) | {"regrowths": [e["causes"] for e in log]}
+if sys.argv[-1] == "eulerian":   # the spatial decomposition (mlsph_jax.spatial)
+    out["spatial"] = fields(run(2, decomposition="spatial")[0])
 try:
     from mlsph_jax.sharding import particle_sharding
     particle_sharding(2, 145)
@@ -76,7 +80,7 @@ jax.distributed.initialize(coordinator_address="127.0.0.1:" + sys.argv[2], num_p
                            process_id=int(sys.argv[1]))
 assert len(jax.devices()) == 2 and len(jax.local_devices()) == 1
 """ + CASE + """
-res, _ = run(2)
+res, _ = run(2, decomposition=sys.argv[-2])
 print("RESULT" + json.dumps(fields(res)))
 """
 
@@ -137,6 +141,20 @@ def test_two_host_devices_give_the_one_device_numbers_for_moving_particles(two_d
     _check_two_devices(two_devices_moving)
 
 
+def test_spatial_decomposition_gives_the_one_device_numbers(two_devices):
+    """run.decomposition = "spatial": Morton-ordered shards, a two-stencil halo exchanged by
+    ppermute in shard_map; the final state (back in the original particle order), step count,
+    metrics and conservation equal the one-device run's to round-off."""
+    one, sp = two_devices["one"], two_devices["spatial"]
+    assert sp["devices"] == 2 and sp["decomposition"]["kind"] == "spatial"
+    assert min(sp["decomposition"]["halo"]) > 0        # the shards do exchange
+    _assert_same(one, sp)
+    for k, v in one["metrics"].items():
+        assert sp["metrics"][k] == pytest.approx(v, rel=1e-12, abs=1e-15), k
+    for k, v in one["conservation"].items():
+        assert sp["conservation"][k] == pytest.approx(v, abs=1e-13), k
+
+
 @pytest.mark.slow
 def test_overflow_on_two_devices_regrows_and_gives_the_same_numbers(two_devices_moving):
     """A row capacity of 3 overflows in the first step; the sharded driver grows it (one
@@ -189,12 +207,216 @@ def _free_port() -> int:
 def test_two_processes_with_jax_distributed_give_the_one_device_numbers(two_devices):
     """Two processes on localhost, one CPU device each, joined by jax.distributed.initialize
     (cross-process collectives: gloo); both end with the whole state of the one-device run."""
+    for out in _distributed("index"):
+        assert out["devices"] == 2
+        _assert_same(two_devices["one"], out)
+
+
+def _distributed(decomposition: str) -> list[dict]:
     port = str(_free_port())
-    procs = [_python(DISTRIBUTED, str(i), port, "eulerian", background=True) for i in range(2)]
+    procs = [_python(DISTRIBUTED, str(i), port, decomposition, "eulerian", background=True) for i in range(2)]
     outs = []
     for p in procs:
         stdout, stderr = p.communicate(timeout=600)
         outs.append(_result(p.returncode, stdout, stderr))
-    for out in outs:
-        assert out["devices"] == 2
+    return outs
+
+
+@pytest.mark.slow
+def test_two_processes_with_the_spatial_decomposition_give_the_one_device_numbers(two_devices):
+    """The spatial decomposition across two processes (jax.distributed, one CPU device each):
+    the halo ppermute crosses the processes; both end with the whole one-device state in the
+    original particle order."""
+    for out in _distributed("spatial"):
+        assert out["devices"] == 2 and out["decomposition"]["kind"] == "spatial"
         _assert_same(two_devices["one"], out)
+
+
+# --------------------------------------------------------------------------------------------
+# spatial decomposition (run.decomposition = "spatial", mlsph_jax.spatial)
+# --------------------------------------------------------------------------------------------
+
+#: The lid-driven cavity (mirror-ghost walls with corner ghosts: the ghosts a shard regenerates
+#: must have their parents on it), 10 x 10 fluid particles, on one device and spatially on two.
+CAVITY = """
+import json
+import numpy as np
+from mlsph_jax import config
+from mlsph_jax.cases import build_problem
+from mlsph_jax.simulation import run_problem
+
+TEXT = '[case]\\nname = "lid_driven_cavity"\\nn = 10\\n[output]\\nplots = false\\nprogress = false\\n'
+out = {}
+for name, devices, dec in (("one", 1, "index"), ("spatial", 2, "spatial")):
+    cfg = config.loads(TEXT, ["time.t_end=0.02", "time.chunk=8", f"run.devices={devices}",
+                              f"run.decomposition={dec}"])
+    res = run_problem(build_problem(cfg), cfg, quiet=True)
+    out[name] = {k: np.asarray(getattr(res.particles, k)).tolist() for k in ("x", "vol", "q")} | {
+        "n_steps": res.summary["n_steps"], "t": res.summary["t_final"], "metrics": res.summary["metrics"],
+        "decomposition": res.summary.get("decomposition")}
+print("RESULT" + json.dumps(out))
+"""
+
+
+def test_spatial_decomposition_with_mirror_walls_gives_the_one_device_numbers():
+    out = _python(CAVITY, devices=2)
+    one, sp = out["one"], out["spatial"]
+    assert sp["decomposition"]["kind"] == "spatial" and min(sp["decomposition"]["halo"]) > 0
+    _assert_same(one, sp)
+    for k, v in one["metrics"].items():
+        assert sp["metrics"][k] == pytest.approx(v, rel=1e-11, abs=1e-14), k
+
+
+def _layout_case(text: str, devices: int):
+    import numpy as np
+
+    from mlsph_jax.run import setup_run
+    from mlsph_jax.spatial import build_layout
+
+    pb = build_problem(config.loads(text))
+    nl = setup_run(pb).nl
+    idx, mask = np.asarray(nl.idx), np.asarray(nl.mask)
+    b = pb.boundary
+    ghost, parent = (None, None) if b is None else (np.asarray(b.ghost), np.asarray(b.parent))
+    return pb, idx, mask, ghost, parent, build_layout(np.asarray(pb.particles.x), idx, mask, devices, ghost, parent)
+
+
+@pytest.mark.parametrize("text,devices", [
+    ('[case]\nname = "taylor_green_2d"\nn = 16\n', 2),
+    ('[case]\nname = "taylor_green_2d"\nn = 16\n', 3),
+    ('[case]\nname = "lid_driven_cavity"\nn = 12\n', 2),
+    ('[case]\nname = "lid_driven_cavity"\nn = 12\n', 5),
+])
+def test_spatial_halo_covers_every_stencil(text, devices):
+    """Host-side layout of the spatial decomposition (no devices needed): every particle is
+    owned by exactly one shard; every neighbour of an owned row and of a first-ring halo row is
+    a row of the shard (two stencil hops: the reverse pair's midpoint state is the neighbour's
+    fit); every owned ghost's parent is owned by the same shard; and the exchange tables bring
+    every halo row the particle it stands for (the ppermute of each shift emulated here)."""
+    import numpy as np
+
+    pb, idx, mask, ghost, parent, lay = _layout_case(text, devices)
+    n, D = pb.particles.n, devices
+    owned = [lay.rows[k, :lay.n_owned[k]] for k in range(D)]
+    assert np.array_equal(np.sort(np.concatenate(owned)), np.arange(n))
+    assert np.array_equal(lay.rows.reshape(-1)[lay.pos], np.arange(n))
+    real = np.ones(n, bool)
+    if ghost is not None:
+        real[ghost] = False
+    sizes = np.bincount(lay.owner[real], minlength=D)
+    assert sizes.max() - sizes.min() <= 1              # equal blocks of the curve (ghosts follow parents)
+    for k in range(D):
+        local = set(lay.rows[k, :lay.n_local[k]].tolist())
+        nbr1 = set(idx[owned[k]][mask[owned[k]]].tolist())
+        assert nbr1 <= local
+        ring1 = np.fromiter(nbr1, int)
+        assert set(idx[ring1][mask[ring1]].tolist()) <= local
+        if ghost is not None:
+            mine = lay.owner[ghost] == k
+            assert np.all(lay.owner[parent[mine]] == k)
+    # the exchange: recv buffer of shard m = concatenation over shifts s of shard (m - s)'s send rows
+    for m in range(D):
+        recv = np.concatenate([lay.rows[(m - s) % D][send[(m - s) % D]]
+                               for s, send in zip(lay.shifts, lay.send, strict=True)])
+        nh = lay.n_local[m] - lay.n_owned[m]
+        got = recv[lay.halo_src[m, :nh]]
+        assert np.array_equal(got, lay.rows[m, lay.halo_rows[m, :nh]])
+        assert np.all(lay.owner[got] != m)
+
+
+def test_spatial_geometry_rows_keep_their_neighbours():
+    """The local geometry of every owned row, its neighbour indices mapped back through the
+    layout, is the global row: same neighbours in the same slots (so the reverse slots stay
+    valid), same area vectors and fit; padding slots stay masked."""
+    import jax
+    import numpy as np
+
+    from mlsph_jax.integrate import static_geometry
+    from mlsph_jax.run import setup_run
+    from mlsph_jax.spatial import SpatialSharding, build_layout
+
+    pb = build_problem(config.loads('[case]\nname = "taylor_green_2d"\nn = 12\n'))
+    nl = setup_run(pb).nl
+    geom = static_geometry(pb.particles, nl, pb.scheme, pb.domain)
+    D = 2
+    lay = build_layout(np.asarray(pb.particles.x), np.asarray(nl.idx), np.asarray(nl.mask), D)
+    # the host tables only: one device holds both shards' rows here
+    sh = SpatialSharding(jax.sharding.Mesh(np.asarray(jax.devices()[:1]), ("particles",)), pb.particles.n, lay, b"")
+    g = sh.place_geometry(geom).geom
+    L, K = lay.width, nl.idx.shape[1]
+    idx, mask = np.asarray(g.idx).reshape(D, L, K), np.asarray(g.mask).reshape(D, L, K)
+    for k in range(D):
+        r = lay.rows[k, :lay.n_owned[k]]
+        assert np.array_equal(mask[k, :r.size], np.asarray(geom.mask)[r])
+        back = np.where(mask[k, :r.size], lay.rows[k][np.minimum(idx[k, :r.size], L - 1)], -1)
+        assert np.array_equal(back, np.where(np.asarray(geom.mask)[r], np.asarray(geom.idx)[r], -1))
+        for f in ("rev", "A", "coeffs", "pair_mask"):
+            a = np.asarray(getattr(g, f)).reshape(D, L, *np.shape(getattr(geom, f))[1:])
+            assert np.array_equal(a[k, :r.size], np.asarray(getattr(geom, f))[r]), f
+
+
+def test_spatial_decomposition_refuses_what_it_does_not_support():
+    base = '[case]\nname = "taylor_green_2d"\nn = 8\n'
+    cases = [
+        (base, ["scheme.frame=ale_shift"], r'scheme\.frame=.ale_shift. with run\.decomposition="spatial".*allowed'),
+        (base, ["scheme.limiter=mood"], r'scheme\.limiter=.mood. with run\.decomposition="spatial".*allowed'),
+        (base, ["time.local_time_stepping=true"], r"time\.local_time_stepping=true with run\.decomposition"),
+        ('[case]\nname = "lid_driven_cavity"\nn = 8\n', ["case.walls=boundary_integral"],
+         r'invalid case\.walls="boundary_integral" with run\.decomposition="spatial".*case\.walls="mirror_ghosts"'),
+        (base, ["run.devices=64"], r"run\.devices=64: only 1 device\(s\) available"),
+    ]
+    for text, over, msg in cases:
+        cfg = config.loads(text, ["run.decomposition=spatial", *over])
+        with pytest.raises(InputError, match=msg):
+            run_problem(build_problem(cfg), cfg, quiet=True)
+    pb = build_problem(config.loads(base, ["run.decomposition=spatial"]))
+    from mlsph_jax.differentiable import make_simulate
+    from mlsph_jax.diffrax_path import make_solve
+
+    for build in (make_simulate, make_solve):   # the one-device run paths
+        with pytest.raises(InputError, match=r"invalid run\.decomposition='spatial' for the d.*allowed: 'index'"):
+            build(pb, n_steps=2)
+    with pytest.raises(ConfigError, match=r"run\.decomposition"):
+        config.loads(base, ["run.decomposition=slabs"])
+    with pytest.raises(InputError, match=r"invalid run\.decomposition='slabs'; allowed: 'index', 'spatial'"):
+        Simulation(build_problem(config.loads(base)), decomposition="slabs")
+
+
+#: Sod's tube (1D; FROZEN transmissive ends) in the Eulerian frame without MOOD: first order to
+#: t = 0.02 on one device and spatially on two, then the unlimited quadratic reconstruction,
+#: which blows up in the first step: both runs must name the same step and particle.
+SOD = """
+import json
+import numpy as np
+from mlsph_jax import config
+from mlsph_jax.cases import build_problem
+from mlsph_jax.errors import SimulationError
+from mlsph_jax.simulation import run_problem
+
+TEXT = open(sys.argv[1]).read()
+out = {}
+for name, devices, dec in (("one", 1, "index"), ("spatial", 2, "spatial")):
+    over = ["time.t_end=0.02", "scheme.frame=eulerian", "scheme.limiter=none", f"run.devices={devices}",
+            f"run.decomposition={dec}", "output.plots=false", "output.progress=false"]
+    cfg = config.loads(TEXT, [*over, "scheme.reconstruction_degree=0"])
+    res = run_problem(build_problem(cfg), cfg, quiet=True)
+    out[name] = {k: np.asarray(getattr(res.particles, k)).tolist() for k in ("x", "vol", "q", "kind")} | {
+        "n_steps": res.summary["n_steps"], "t": res.summary["t_final"]}
+    cfg = config.loads(TEXT, over)
+    try:
+        run_problem(build_problem(cfg), cfg, quiet=True)
+    except SimulationError as e:
+        out[name]["failure"] = [str(e), e.step, e.particle]
+print("RESULT" + json.dumps(out))
+"""
+
+
+def test_spatial_decomposition_with_frozen_ends_and_a_failure_in_1d():
+    """1D, FROZEN particles beyond both ends: the spatial run ends with the one-device state,
+    and a run that fails reports the same step and the same (original) particle index."""
+    out = _python("import sys\n" + SOD, str(ROOT / "configs" / "sod_ideal_gas.toml"), devices=2)
+    one, sp = out["one"], out["spatial"]
+    assert 3 in one["kind"]   # Kind.FROZEN
+    _assert_same(one, sp)
+    assert one["failure"][1:] == sp["failure"][1:] and one["failure"][2] >= 0
+    assert one["failure"][0] == sp["failure"][0]

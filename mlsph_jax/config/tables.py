@@ -232,9 +232,16 @@ OUTPUT_KEYS: dict[str, Key] = {
 RUN_KEYS: dict[str, Key] = {
     "devices": Key(int, 1, minimum=0, note="0 = every available device",
                    doc="devices the particle state is sharded over (jax.sharding, 1-D mesh on the particle "
-                       "axis, mlsph_jax.sharding); must divide the particle count and not exceed "
-                       "len(jax.devices()) (host devices: XLA_FLAGS=--xla_force_host_platform_device_count=N; "
-                       "several hosts: jax.distributed.initialize)"),
+                       "axis, mlsph_jax.sharding); must divide the particle count (run.decomposition = index) "
+                       "and not exceed len(jax.devices()) (host devices: "
+                       "XLA_FLAGS=--xla_force_host_platform_device_count=N; several hosts: "
+                       "jax.distributed.initialize)"),
+    "decomposition": Key(str, "index", choices=("index", "spatial"),
+                         doc="how run.devices > 1 splits the particles: index = index ranges, XLA's SPMD "
+                             "partitioner all-gathers the fields each stage (every frame); spatial = Morton-ordered "
+                             "compact regions with a two-stencil halo exchanged by jax.shard_map collectives "
+                             "(Eulerian frame, no MOOD, no boundary-integral walls, no local time stepping; "
+                             "docs/performance.md)"),
     "precision": Key(str, "float64", choices=("float64", "float32"),
                      doc="floating-point precision of the particle state, the parameters and the geometry; "
                          "float32 keeps the MLS moment matrices and their solves and the Tait pressure in "
