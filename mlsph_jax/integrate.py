@@ -28,7 +28,7 @@ from .kernels import safe_norm
 from .rhs import Geometry, frame_velocity, geometry, rhs
 from .scheme import Scheme
 from .state import Domain, Kind, Params, Particles, tiny
-from .status import Status, combine, state_status
+from .status import Status, combine, first_index, state_status
 
 __all__ = ["MOOD_STATS", "Carry", "LocalOps", "Status", "StepControl", "cfl_dt", "cfl_limiting_particle",
            "initial_carry", "local_steps", "make_chunk", "make_stage_geometry", "make_verlet_stage_geometry",
@@ -291,7 +291,7 @@ def _mood_stats(stats, p: Particles, scheme: Scheme, count=jnp.sum):
 
 def step_status(p: Particles, newp: Particles, params: Params, scheme: Scheme, dt, overflow, stats, *,
                 dt_fixed: bool = False, cfl: float = 0.3, cfl_viscous: float = 0.125, dt_min: float = 0.0,
-                last=False, boundary=None):
+                last=False, boundary=None, ops=None):
     """``(status bits, first offending particle)`` of one step from ``p`` to the candidate ``newp``
     (traceable, no host synchronisation, no gradient):
 
@@ -309,9 +309,12 @@ def step_status(p: Particles, newp: Particles, params: Params, scheme: Scheme, d
     * DT_UNDERFLOW when ``dt < dt_min`` and the step is not the ``last`` one before an output time;
     * the ``boundary``'s ``band_status(newp)`` if it has one (mirror walls: GHOST_BAND).
 
-    For the dt causes the particle is the one limiting the CFL step.
+    For the dt causes the particle is the one limiting the CFL step.  ``ops`` (:class:`LocalOps`
+    by default): how the particle of a cause is found (the spatial decomposition finds it over
+    every shard, by original index).
     """
-    bits, bad = state_status(newp, params, scheme)
+    ops = LocalOps() if ops is None else ops
+    bits, bad = state_status(newp, params, scheme, first=ops.first)
     bits = bits | overflow
     if getattr(boundary, "band_status", None) is not None:
         bits, bad = combine(bits, bad, *boundary.band_status(newp))
@@ -327,7 +330,7 @@ def step_status(p: Particles, newp: Particles, params: Params, scheme: Scheme, d
     if dt_min > 0:
         dt_bits = dt_bits | jnp.where((dt < dt_min) & ~last, jnp.int32(Status.DT_UNDERFLOW), 0)
     if dt_fixed or dt_min > 0:
-        limiting = cfl_limiting_particle(p, params, scheme)
+        limiting = ops.argmin(_local_dt(jax.lax.stop_gradient(p), params, scheme))   # cfl_limiting_particle
         bits, bad = combine(bits, bad, dt_bits, jnp.where(dt_bits != 0, limiting, -1))
     return bits.astype(jnp.int32), bad.astype(jnp.int32)
 
@@ -365,6 +368,14 @@ class LocalOps:
     def status(self, bits, bad):
         """Global status bits and offending particle (original index)."""
         return bits, bad
+
+    def first(self, mask):
+        """Index of the first particle where ``mask`` holds, or -1."""
+        return first_index(mask)
+
+    def argmin(self, values):
+        """Index of the (first) smallest value."""
+        return jnp.argmin(values).astype(jnp.int32)
 
 
 def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: int, nspec=None, boundary=None,
@@ -420,7 +431,7 @@ def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: in
                 st, bad = ops.status(*step_status(c.particles, newp, params, scheme, dt, overflow, stats,
                                                   dt_fixed=control.dt_fixed > 0, cfl=control.cfl,
                                                   cfl_viscous=control.cfl_viscous, dt_min=control.dt_min,
-                                                  last=last, boundary=boundary))
+                                                  last=last, boundary=boundary, ops=ops))
                 ok = st == Status.OK
                 keep = lambda new, old: jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, old)
                 t_new = jnp.where(last, t_stop, c.t + dt)

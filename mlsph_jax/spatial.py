@@ -93,7 +93,8 @@ def check_spatial(scheme, boundary, *, local_time_stepping: bool = False):
                          f"not built for the spatial decomposition; {ok}scheme.limiter=\"none\" (or "
                          "run.decomposition=\"index\")")
     if boundary is not None and not isinstance(boundary, MirrorWalls):
-        what = ("case.walls=\"boundary_integral\"" if getattr(boundary, "wall_terms", None) is not None
+        what = ("boundary-integral walls (case.walls=\"boundary_integral\", or a case whose body is one, "
+                "such as the cylinder)" if getattr(boundary, "wall_terms", None) is not None
                 else f"walls of type {type(boundary).__name__}")
         raise InputError(f"invalid {what} with run.decomposition=\"spatial\": {ok}no walls or "
                          "case.walls=\"mirror_ghosts\" (or run.decomposition=\"index\")")
@@ -204,7 +205,7 @@ def build_layout(x: np.ndarray, idx: np.ndarray, mask: np.ndarray, devices: int,
     pad = lambda a, v: np.concatenate([a, np.full(h - a.size, v, np.int64)])  # noqa: E731
     return _Layout(rows=rows, n_owned=np.array([a.size for a in owned]), n_local=np.array([a.size for a in local]),
                    owner=owner, pos=pos, shifts=shifts, send=tuple(send),
-                   halo_rows=np.stack([pad(a, width - 1) for a in halo_rows]),
+                   halo_rows=np.stack([pad(a, width) for a in halo_rows]),   # padding: out of range (dropped)
                    halo_src=np.stack([pad(a, a[0] if a.size else 0) for a in halo_src]))
 
 
@@ -380,7 +381,7 @@ class Collectives:
         recv = [jax.lax.ppermute(p.q[send[0]], AXIS, perm=[(k, (k + s) % D) for k in range(D)])
                 for s, send in zip(self.shifts, self.t.send, strict=True)]
         recv = recv[0] if len(recv) == 1 else jnp.concatenate(recv, axis=0)
-        return p.replace(q=p.q.at[self.t.halo_rows[0]].set(recv[self.t.halo_src[0]]))
+        return p.replace(q=p.q.at[self.t.halo_rows[0]].set(recv[self.t.halo_src[0]], mode="drop"))
 
     def min(self, x):
         return jax.lax.pmin(x, AXIS)
@@ -390,13 +391,31 @@ class Collectives:
         return jax.lax.psum(jnp.sum(mask & self.t.owned), AXIS)
 
     def status(self, bits, bad):
-        """Status bits OR-ed over the shards; the offending particle's original index (the
-        smallest over the shards' first offenders; -1 if none)."""
+        """Status bits OR-ed over the shards; ``bad`` is already an original index, the same on
+        every shard (:meth:`first`, :meth:`argmin`, the boundary's :meth:`_HaloBoundary.band_status`)."""
         every = jax.lax.all_gather(bits, AXIS)
         bits = functools.reduce(jnp.bitwise_or, [every[k] for k in range(self.devices)])
-        big = jnp.iinfo(jnp.int32).max
-        gid = jax.lax.pmin(jnp.where(bad >= 0, self.t.gid[jnp.maximum(bad, 0)], big), AXIS)
-        return bits, jnp.where(gid == big, -1, gid).astype(jnp.int32)
+        return bits, self._smallest(jnp.where(bad >= 0, bad, _BIG))
+
+    def _smallest(self, gid):
+        g = jax.lax.pmin(gid, AXIS)
+        return jnp.where(g == _BIG, -1, g).astype(jnp.int32)
+
+    def first(self, mask):
+        """Smallest original index of an owned row where ``mask`` holds, over every shard, or -1
+        (the particle a one-device run's first-index search names)."""
+        return self._smallest(jnp.min(jnp.where(mask & self.t.owned, self.t.gid, _BIG)))
+
+    def argmin(self, values):
+        """Original index of the smallest of ``values`` over the owned rows of every shard (the
+        smallest such index on ties, as ``jnp.argmin`` on one device)."""
+        v = jnp.where(self.t.owned, values, jnp.inf)
+        m = jax.lax.pmin(jnp.min(v), AXIS)
+        return self._smallest(jnp.min(jnp.where(self.t.owned & (v == m), self.t.gid, _BIG)))
+
+
+#: "No particle" in the index reductions.
+_BIG = np.iinfo(np.int32).max
 
 
 class _HaloBoundary:
@@ -411,9 +430,15 @@ class _HaloBoundary:
         return self.ops.exchange(p)
 
     def band_status(self, p):
+        """The mirror walls' check of this shard, its particle as an original index (the
+        smallest over the shards' first offenders in local order; the cause is the same as on
+        one device, the particle may be another one within the band)."""
         if self.ops.mirror is None:
             return jnp.zeros((), jnp.int32), jnp.asarray(-1, jnp.int32)
-        return self.ops.mirror.band_status(p)
+        bits, bad = self.ops.mirror.band_status(p)
+        t = self.ops.t
+        ok = (bad >= 0) & t.owned[jnp.maximum(bad, 0)]
+        return bits, self.ops._smallest(jnp.where(ok, t.gid[jnp.maximum(bad, 0)], _BIG))
 
 
 def shard_chunk(local_chunk, sharding: SpatialSharding):

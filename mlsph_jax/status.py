@@ -98,13 +98,20 @@ _DESCRIPTIONS = {
 _PARTICLE_PRIORITY = (Status.NONFINITE, Status.NEGATIVE_VOLUME, Status.NEGATIVE_DENSITY, Status.INADMISSIBLE)
 
 
-def state_status(p: Particles, params: Params, scheme) -> tuple[jax.Array, jax.Array]:
+def first_index(mask) -> jax.Array:
+    """Index of the first particle where ``mask`` holds, or -1 (int32; traceable)."""
+    return jnp.where(jnp.any(mask), jnp.argmax(mask), -1).astype(jnp.int32)
+
+
+def state_status(p: Particles, params: Params, scheme, first=first_index) -> tuple[jax.Array, jax.Array]:
     """``(status bits int32, first offending particle int32 or -1)`` of a state (traceable).
 
     Checks the fluid particles: finite x, V and V U (NONFINITE); V > 0 (NEGATIVE_VOLUME);
     rho > 0 (NEGATIVE_DENSITY); the EOS admissibility ``get_eos(scheme.eos).admissible(rho, p)``
     of the remaining particles (INADMISSIBLE).  Each particle is counted under its first cause
-    only, in that order.  No gradient flows through it.
+    only, in that order.  No gradient flows through it.  ``first(mask)``: the reported particle
+    of a cause (default :func:`first_index`; the spatial decomposition's collective version
+    returns the smallest original index over every shard).
     """
     p = jax.lax.stop_gradient(p)
     fluid = p.kind == Kind.FLUID
@@ -124,9 +131,10 @@ def state_status(p: Particles, params: Params, scheme) -> tuple[jax.Array, jax.A
     bits = jnp.zeros((), jnp.int32)
     bad = jnp.asarray(-1, jnp.int32)
     for s in reversed(_PARTICLE_PRIORITY):   # the highest priority cause wins the particle
-        hit = jnp.any(masks[s])
+        f = first(masks[s])
+        hit = f >= 0
         bits = bits | jnp.where(hit, jnp.int32(s), 0)
-        bad = jnp.where(hit, jnp.argmax(masks[s]).astype(jnp.int32), bad)
+        bad = jnp.where(hit, f, bad)
     return bits, bad
 
 

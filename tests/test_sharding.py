@@ -362,7 +362,8 @@ def test_spatial_decomposition_refuses_what_it_does_not_support():
         (base, ["scheme.limiter=mood"], r'scheme\.limiter=.mood. with run\.decomposition="spatial".*allowed'),
         (base, ["time.local_time_stepping=true"], r"time\.local_time_stepping=true with run\.decomposition"),
         ('[case]\nname = "lid_driven_cavity"\nn = 8\n', ["case.walls=boundary_integral"],
-         r'invalid case\.walls="boundary_integral" with run\.decomposition="spatial".*case\.walls="mirror_ghosts"'),
+         r'invalid boundary-integral walls \(case\.walls="boundary_integral".* with run\.decomposition="spatial".*'
+         r'case\.walls="mirror_ghosts"'),
         (base, ["run.devices=64"], r"run\.devices=64: only 1 device\(s\) available"),
     ]
     for text, over, msg in cases:
@@ -409,6 +410,48 @@ for name, devices, dec in (("one", 1, "index"), ("spatial", 2, "spatial")):
         out[name]["failure"] = [str(e), e.step, e.particle]
 print("RESULT" + json.dumps(out))
 """
+
+
+THREE_SHARDS = """
+import dataclasses, json
+import numpy as np
+from mlsph_jax import config
+from mlsph_jax.cases import build_problem
+from mlsph_jax.errors import SimulationError
+from mlsph_jax.simulation import Simulation
+pb = build_problem(config.loads('[case]\\nname = "taylor_green_2d"\\nn = 16\\n', ["time.t_end=0.01"]))
+p = pb.particles
+graded = dataclasses.replace(pb, particles=p.replace(vol=p.vol.at[0].multiply(0.6), q=p.q.at[0].multiply(0.6)))
+out = {}
+for dec, dev in (("index", 1), ("spatial", 3)):
+    r = Simulation(graded, devices=dev, decomposition=dec, chunk=4).run(None, snapshots=1, progress=False, plots=False)
+    out[dec] = [r.summary["n_steps"], r.summary["dt_last"], np.asarray(r.particles.q).tolist(),
+                min(r.summary["decomposition"]["halo"]) if dec == "spatial" else 0,
+                max(r.summary["decomposition"]["halo"]) if dec == "spatial" else 0]
+    try:
+        Simulation(pb, devices=dev, decomposition=dec, chunk=4, dt_min=0.5).run(None, snapshots=1, progress=False,
+                                                                                plots=False)
+    except SimulationError as e:
+        out[dec + "_failure"] = [e.step, e.particle]
+print("RESULT" + json.dumps(out))
+"""
+
+
+def test_spatial_shards_with_unequal_halos_and_a_tie_for_the_limiting_particle():
+    """Three shards of a 16 x 16 Taylor-Green vortex (unequal halos: the shorter ones padded).
+    With particle 0 graded (0.6 V, same density) the spatial run takes the one-device steps and
+    ends in its state (a padding row that received another particle's q once shortened the step:
+    29 steps instead of 8); a run stopped by time.dt_min names the particle a one-device run
+    names, the first of the tied CFL-limiting particles (not each shard's own first)."""
+    import numpy as np
+
+    out = _python(THREE_SHARDS, devices=3)
+    one, sp = out["index"], out["spatial"]
+    assert sp[3] < sp[4]                                   # the halos differ: some shard is padded
+    assert (sp[0], sp[1]) == (one[0], one[1]) and one[0] > 1
+    q1, q3 = np.asarray(one[2]), np.asarray(sp[2])
+    np.testing.assert_allclose(q3, q1, rtol=0, atol=1e-13 * np.abs(q1).max())
+    assert out["spatial_failure"] == out["index_failure"] and out["index_failure"][1] >= 0
 
 
 def test_spatial_decomposition_with_frozen_ends_and_a_failure_in_1d():
