@@ -63,7 +63,7 @@ from ..boundaries import BOUNDARIES
 from ..config import effective_beta
 from ..eos import get_eos, to_conservative, to_primitive
 from ..errors import ConfigError, InputError
-from ..geometry import Circle
+from ..geometry import Circle, StreamEllipse
 from ..kernels import get_kernel
 from ..plotting import subplots
 from ..reference import cylinder as ref
@@ -72,7 +72,7 @@ from ..simulation import Problem
 from ..state import Domain, Kind, Params, Particles, make_particles
 from .base import register_case
 from .common import params_from_config, scheme_from_config
-from .layouts import polar_layout, polar_ring_edges
+from .layouts import elliptic_polar_layout, polar_layout, polar_ring_edges
 
 #: Free-stream density and speed (the scales of the coefficients).
 RHO_INF = 1.0
@@ -80,6 +80,8 @@ U_INF = 1.0
 #: Name of the body's curve (``geometry.body.*`` parameters).
 BODY = "body"
 _NAMES = ("case.radius", "case.n_theta", "case.r_far")
+#: ``case.body`` choices: the curve of each.
+BODIES = ("circle", "ellipse")
 
 
 def cylinder_viscosity(cfg: Mapping) -> float:
@@ -145,6 +147,10 @@ def check_cylinder(cfg: dict) -> None:
                             f"case.n_theta={c['n_theta']}: the far-field rings start inside the support of the "
                             f"body's wall points (out to r = {need:.4g}), the body is too big for the layout; "
                             f"allowed: case.r_far > {need:.4g} (or a smaller case.radius)")
+    if c["body"] == "circle" and (c["aspect"] != 1.0 or c["alpha"] != 0.0):
+        problems.append(f"invalid case.aspect={show(c['aspect'])} / case.alpha={show(c['alpha'])} with "
+                        "case.body=\"circle\": a circle has aspect 1 and no angle of attack; allowed: "
+                        "case.body = \"ellipse\" (or aspect 1 and alpha 0)")
     bf = phys["body_force"]
     if bf and any(f != 0.0 for f in bf):
         p_inf = RHO_INF * (U_INF / c["mach"]) ** 2 / cfg["eos"]["gamma"]
@@ -172,6 +178,16 @@ CYLINDER_KEYS: dict[str, Key] = {
     "r_far": Key(float, 40.0, minimum=0.0, exclusive_minimum=True, unit="m",
                  doc="outer radius of the fluid region (frozen free-stream rings beyond it); "
                      "thesis setup: 40 with n_theta = 120 (10,800 particles)"),
+    "body": Key(str, "circle", choices=BODIES,
+                doc="the body: a circle of case.radius, or an ellipse of the same area (equal-area radius "
+                    "case.radius, aspect ratio case.aspect, angle of attack case.alpha) on the conformally "
+                    "mapped polar layout (docs/architecture.md decision 65)"),
+    "aspect": Key(float, 1.0, minimum=0.0, exclusive_minimum=True,
+                  doc="ellipse only: aspect ratio a/b of the semi-axes along/across its chord, a = R sqrt(aspect), "
+                      "b = R / sqrt(aspect) (R = case.radius; parameter geometry.body.aspect)"),
+    "alpha": Key(float, 0.0, minimum=-90.0, maximum=90.0, unit="deg",
+                 doc="ellipse only: angle of attack, nose up, in degrees (the body and its layout turned by "
+                     "-alpha; parameter geometry.body.alpha in radians)"),
     "steady_tol": Key(float, 1e-3, minimum=0.0,
                       doc="stop once max|u(t2) - u(t1)| / max|u| / (t2 - t1) between two output "
                           "times is below this (1/s; 0 = always run to time.t_end)"),
@@ -183,16 +199,36 @@ def run_config(cfg: Mapping) -> dict:
     return {**cfg, "physics": {**cfg["physics"], "mu": cylinder_viscosity(cfg)}}
 
 
-def free_stream(cfg: Mapping, x: np.ndarray, params: Params):
+def free_stream(cfg: Mapping, x: np.ndarray, params: Params, xp=np):
     """``(rho, vel, p)`` of the free stream at ``x[N, 2]`` (the isothermal hydrostatic atmosphere
-    when there is a body force; module docstring)."""
+    when there is a body force; module docstring); ``xp``: numpy or jax.numpy (traceable in x)."""
     c = cfg["case"]
     p_inf = RHO_INF * (U_INF / c["mach"]) ** 2 / cfg["eos"]["gamma"]
     bf = cfg["physics"]["body_force"]
     f = np.asarray(bf if bf else [0.0, 0.0], float)
-    p = p_inf * np.exp(RHO_INF * (x @ f) / p_inf)
-    vel = np.tile([U_INF, 0.0], (len(x), 1))
+    p = p_inf * xp.exp(RHO_INF * (x @ f) / p_inf)
+    vel = xp.tile(xp.asarray([U_INF, 0.0]), (len(x), 1))
     return RHO_INF * p / p_inf, vel, p
+
+
+def body_curve(cfg: Mapping):
+    """The body's curve: a :class:`~mlsph_jax.geometry.Circle` of ``case.radius``, or for
+    ``case.body = "ellipse"`` the :class:`~mlsph_jax.geometry.StreamEllipse` of equal-area radius
+    ``case.radius``, aspect ``case.aspect`` and angle of attack ``case.alpha`` (degrees in the
+    config, radians in ``geometry.body.alpha``); ``case.n_theta`` quadrature points."""
+    c = cfg["case"]
+    if c["body"] == "ellipse":
+        return StreamEllipse(BODY, radius=float(c["radius"]), aspect=float(c["aspect"]),
+                             alpha=math.radians(c["alpha"]), n_points=c["n_theta"])
+    return Circle(BODY, centre=(0.0, 0.0), radius=float(c["radius"]), n_points=c["n_theta"])
+
+
+def body_layout(body, edges, n_theta: int, params):
+    """``(x[N, 2], vol[N])`` of the body-fitted layout for the body's parameters in ``params``
+    (jnp, differentiable in every ``geometry.body.*`` shape parameter: centre, radius, aspect,
+    angle of attack; :func:`~mlsph_jax.cases.layouts.elliptic_polar_layout`)."""
+    semi_axes, angle = body._axes(params)
+    return elliptic_polar_layout(edges, n_theta, params[body.key("centre")], semi_axes, angle)
 
 
 def build(cfg: Mapping) -> Problem:
@@ -206,22 +242,37 @@ def build(cfg: Mapping) -> Problem:
     lay = polar_layout(R, n_theta, c["r_far"], n_frozen, names=_NAMES)
     n_fluid_rings = len(lay.edges) - 1 - n_frozen
     kind = np.where(lay.ring < n_fluid_rings, int(Kind.FLUID), int(Kind.FROZEN))
-    rho, vel, p = free_stream(cfg, lay.x, params)
+    body = body_curve(cfg)
+    # the body's geometry parameters live in the Params (differentiable, `mlsph sensitivity --wrt`)
+    params = params.updated({k: jnp.asarray(v, jnp.float64) for k, v in body.defaults().items()})
+    x, vol = (np.asarray(a) for a in body_layout(body, lay.edges, n_theta, params))
+    rho, vel, p = free_stream(cfg, x, params)
     U = to_conservative(jnp.asarray(rho), jnp.asarray(vel), jnp.asarray(p), eos, params)
-    pf = make_particles(lay.x, lay.vol, U, kind=kind, ppd=np.full(len(lay.x), scheme.reconstruction_degree))
-    half = float(lay.edges[-1]) * 1.01
+    pf = make_particles(x, vol, U, kind=kind, ppd=np.full(len(x), scheme.reconstruction_degree))
+    half = float(np.max(np.abs(x))) * 1.01 if c["body"] == "ellipse" else float(lay.edges[-1]) * 1.01
     domain = Domain((-half, -half), (half, half), (False, False))
-    body = Circle(BODY, centre=(0.0, 0.0), radius=float(R), n_points=n_theta)
     band = R * 2.0 * math.pi / n_theta
     particles, walls = BOUNDARIES.get("boundary_integral").setup(pf, [], band, params, scheme.eos, scheme=scheme,
                                                                  domain=domain, curves=(body,))
     _check_far_field_apart(walls, particles)
+
+    def particles_at(P) -> Particles:
+        """The initial particles for the parameters ``P`` (jnp, differentiable): the layout
+        follows the body's shape parameters, the state is the free stream on it.  The topology
+        (neighbour lists, sized from ``problem.particles``) is not re-planned: for the small
+        changes of a gradient or an optimisation step at fixed aspect (a rotation keeps every
+        pair distance) it stays valid (decision 65)."""
+        xj, vj = body_layout(body, lay.edges, n_theta, P)
+        r_, v_, p_ = free_stream(cfg, xj, P, xp=jnp)
+        Uj = to_conservative(r_, v_, p_, eos, P)
+        return particles.replace(x=xj, vol=vj, q=vj[:, None] * Uj)
     p_inf = float(free_stream(cfg, np.zeros((1, 2)), params)[2][0])
     q_inf = 0.5 * RHO_INF * U_INF ** 2
 
     def coefficients(p: Particles, t: float, P) -> dict:
         """C_D, C_L and their parts (jnp, differentiable)."""
-        co = walls.coefficients(p, P, scheme, rho_inf=RHO_INF, u_inf=(U_INF, 0.0), length=2.0 * R, curve=BODY)
+        co = walls.coefficients(p, P, scheme, rho_inf=RHO_INF, u_inf=(U_INF, 0.0),
+                                length=2.0 * P[body.key("radius")], curve=BODY)
         return {**co, "cd_viscous": co["cd"] - co["cd_pressure"], "cl_viscous": co["cl"] - co["cl_pressure"]}
 
     def diagnostics(p: Particles, t: float, P) -> dict[str, float]:
@@ -238,9 +289,11 @@ def build(cfg: Mapping) -> Problem:
         plot_cp(Path(out) / "cp.png", *wall_cp(p, P, walls, scheme, p_inf, q_inf), title=_title(cfg, p.n, t))
         plot_field(Path(out) / "velocity_field.png", p, P, scheme, R, title=_title(cfg, p.n, t))
 
-    return Problem("cylinder", particles, params, scheme, domain, cfg["time"]["t_end"], metrics, plot,
-                   config=cfg, description=_title(cfg, particles.n), boundary=walls, diagnostics=diagnostics,
-                   steady_tol=c["steady_tol"], differentiable_metrics=coefficients)
+    problem = Problem("cylinder", particles, params, scheme, domain, cfg["time"]["t_end"], metrics, plot,
+                      config=cfg, description=_title(cfg, particles.n), boundary=walls, diagnostics=diagnostics,
+                      steady_tol=c["steady_tol"], differentiable_metrics=coefficients)
+    problem.particles_at = particles_at   # read by mlsph_jax.sensitivity (decision 65)
+    return problem
 
 
 def _check_far_field_apart(walls, p: Particles) -> None:
