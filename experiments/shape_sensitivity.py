@@ -4,8 +4,10 @@ differences, and a short optax optimisation of the angle of attack.
 
 The body is the ``cylinder`` case's ``case.body = "ellipse"`` (docs/architecture.md decision 65):
 equal-area radius R = 0.5 (D = 2R, the coefficients' length), aspect ratio A = a/b, angle of
-attack alpha; the body-fitted layout is the polar one carried by a conformal (Joukowski) map, so
-particle positions and volumes are jnp functions of (alpha, A) (``problem.particles_at``).  The
+attack alpha (realised by turning the free stream to (cos alpha, sin alpha); drag and lift are
+the force along and across it); the body-fitted layout is the polar one carried by a conformal
+(Joukowski) map, so particle positions and volumes are jnp functions of A and the initial and
+far-field state one of alpha (``problem.particles_at``).  The
 run is a fixed number of global SSP-RK3 steps (``make_simulate``, checkpoint ``step``) from the
 impulsive start to ``--t-end``; the objective is C_D at t_end.  The finite differences use the
 same compiled run (same neighbour lists), steps ``--fd-rel`` x |value|.
@@ -44,6 +46,7 @@ from mlsph_jax.testing import CONFIG_DIR
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "experiments" / "output"
 ALPHA, ASPECT = "geometry.body.alpha", "geometry.body.aspect"
+F64 = jnp.float64
 
 
 def load():
@@ -108,7 +111,7 @@ def main():
 
     cfg, pb = build(args)
     f, sim = make_objective(pb, args, args.t_end)
-    theta0 = {ALPHA: jnp.asarray(math.radians(args.alpha)), ASPECT: jnp.asarray(args.aspect)}
+    theta0 = {ALPHA: jnp.asarray(math.radians(args.alpha), F64), ASPECT: jnp.asarray(args.aspect, F64)}
     res = {"config": {k: v for k, v in vars(args).items()}, "particles": pb.particles.n,
            "n_steps": sim.n_steps, "dt": sim.dt, "load_start": load()}
     print(f"ellipse A={args.aspect:g}, alpha={args.alpha:g} deg, Re={cfg['case']['re']:g}, M={args.mach:g}: "
@@ -172,7 +175,7 @@ def optimise(vg, theta0, args, sim):
     import optax
 
     opt = optax.lbfgs(learning_rate=1.0, linesearch=None)
-    a = jnp.asarray(math.radians(args.opt_alpha0))
+    a = jnp.asarray(math.radians(args.opt_alpha0), F64)
     state = opt.init(a)
     hist = []
     for it in range(args.opt_iters + 1):
@@ -185,7 +188,7 @@ def optimise(vg, theta0, args, sim):
         if it == args.opt_iters:
             break
         upd, state = opt.update(g[ALPHA], state, a, value=cd, grad=g[ALPHA])
-        a = optax.apply_updates(a, upd)
+        a = jnp.asarray(optax.apply_updates(a, upd), F64)   # same type: no retrace
     plot(hist, Path(args.out).with_name("shape_sensitivity_opt.png"))
     return hist
 

@@ -12,7 +12,25 @@ to r = 80 D and 4 far-field rings).
 Body.  No-slip adiabatic wall by the boundary integral of thesis eq. 4.24
 (:mod:`mlsph_jax.wall_integral`, ``boundary_integral``; SPEC §5.8): a
 :class:`~mlsph_jax.geometry.Circle` named ``body`` with ``n_theta`` quadrature points, no ghosts.
-The body's centre and radius are the parameters ``geometry.body.centre`` / ``geometry.body.radius``.
+The body's centre and radius are the parameters ``geometry.body.centre`` / ``geometry.body.radius``
+of the problem's Params; the layout follows them (below), so ``mlsph sensitivity --wrt
+geometry.body.radius`` moves the particles with the body.
+
+Elliptic body (``case.body = "ellipse"``; decision 65).  A
+:class:`~mlsph_jax.geometry.StreamEllipse` of the same area pi R^2: aspect ratio A = a/b
+(``case.aspect``, parameter ``geometry.body.aspect``), a = R sqrt(A) along x, b = R / sqrt(A),
+and angle of attack alpha (``case.alpha`` in degrees, parameter ``geometry.body.alpha`` in
+radians, nose up).  The angle of attack turns the free stream to U_inf (cos alpha, sin alpha)
+(initial state, far field and the force projection: C_D along the stream, C_L across it), not
+the body: the same flow seen in a frame turned by alpha, in which the body, its layout, the
+neighbour lists and the set-up geometry of the in-run wall-crossing check do not depend on
+alpha.  The layout is the circle's polar layout carried by the Joukowski map z = zeta + c^2 /
+zeta (:func:`~mlsph_jax.cases.layouts.elliptic_polar_layout`): body-fitted, cells kept square,
+volumes the exact areas of the mapped cells.  ``problem.particles_at(params)`` gives the initial
+particles as a jnp function of the Params (positions and volumes of the shape, state of the
+stream direction), which :mod:`mlsph_jax.sensitivity` starts every differentiated run from.  The
+coefficients' length is D = 2R (the equal-area diameter; the chord is 2a).  The recirculation
+length of an ellipse is reported at alpha = 0 only (behind the rear point x = a).
 
 Far field (SPEC §5.8 [REC], §8.5).  Beyond ``r_far`` the geometric rings continue as FROZEN
 particles (:class:`~mlsph_jax.state.Kind`) holding the free-stream state: the integrator never
@@ -186,8 +204,8 @@ CYLINDER_KEYS: dict[str, Key] = {
                   doc="ellipse only: aspect ratio a/b of the semi-axes along/across its chord, a = R sqrt(aspect), "
                       "b = R / sqrt(aspect) (R = case.radius; parameter geometry.body.aspect)"),
     "alpha": Key(float, 0.0, minimum=-90.0, maximum=90.0, unit="deg",
-                 doc="ellipse only: angle of attack, nose up, in degrees (the body and its layout turned by "
-                     "-alpha; parameter geometry.body.alpha in radians)"),
+                 doc="ellipse only: angle of attack, nose up, in degrees (realised by turning the free stream "
+                     "to (cos alpha, sin alpha); parameter geometry.body.alpha in radians)"),
     "steady_tol": Key(float, 1e-3, minimum=0.0,
                       doc="stop once max|u(t2) - u(t1)| / max|u| / (t2 - t1) between two output "
                           "times is below this (1/s; 0 = always run to time.t_end)"),
@@ -207,8 +225,18 @@ def free_stream(cfg: Mapping, x: np.ndarray, params: Params, xp=np):
     bf = cfg["physics"]["body_force"]
     f = np.asarray(bf if bf else [0.0, 0.0], float)
     p = p_inf * xp.exp(RHO_INF * (x @ f) / p_inf)
-    vel = xp.tile(xp.asarray([U_INF, 0.0]), (len(x), 1))
+    vel = xp.tile(stream_velocity(params, xp), (len(x), 1))
     return RHO_INF * p / p_inf, vel, p
+
+
+def stream_velocity(params: Params, xp=np):
+    """The free-stream velocity U_inf (cos alpha, sin alpha): an elliptic body's angle of attack
+    ``geometry.body.alpha`` turns the stream, not the body (decision 65); (U_inf, 0) without it."""
+    key = f"geometry.{BODY}.alpha"
+    if key not in params:
+        return xp.asarray([U_INF, 0.0])
+    a = params[key]
+    return U_INF * xp.stack([xp.cos(a), xp.sin(a)])
 
 
 def body_curve(cfg: Mapping):
@@ -219,7 +247,7 @@ def body_curve(cfg: Mapping):
     c = cfg["case"]
     if c["body"] == "ellipse":
         return StreamEllipse(BODY, radius=float(c["radius"]), aspect=float(c["aspect"]),
-                             alpha=math.radians(c["alpha"]), n_points=c["n_theta"])
+                             alpha=math.radians(c["alpha"]), incidence="stream", n_points=c["n_theta"])
     return Circle(BODY, centre=(0.0, 0.0), radius=float(c["radius"]), n_points=c["n_theta"])
 
 
@@ -271,7 +299,7 @@ def build(cfg: Mapping) -> Problem:
 
     def coefficients(p: Particles, t: float, P) -> dict:
         """C_D, C_L and their parts (jnp, differentiable)."""
-        co = walls.coefficients(p, P, scheme, rho_inf=RHO_INF, u_inf=(U_INF, 0.0),
+        co = walls.coefficients(p, P, scheme, rho_inf=RHO_INF, u_inf=stream_velocity(P, jnp),
                                 length=2.0 * P[body.key("radius")], curve=BODY)
         return {**co, "cd_viscous": co["cd"] - co["cd_pressure"], "cl_viscous": co["cl"] - co["cl_pressure"]}
 
@@ -283,11 +311,18 @@ def build(cfg: Mapping) -> Problem:
         return out
 
     def metrics(p: Particles, t: float, P) -> dict[str, float]:
-        return {**diagnostics(p, t, P), "recirculation_length": recirculation_length(p, P, scheme, R, n_theta)}
+        out = diagnostics(p, t, P)
+        if c["body"] == "circle":
+            out["recirculation_length"] = recirculation_length(p, P, scheme, R, n_theta)
+        elif float(P[body.key("alpha")]) == 0.0:   # at incidence the wake leaves off the layout's rays
+            a = float(body._axes(P)[0][0]) + float(P[body.key("centre")][0])
+            out["recirculation_length"] = recirculation_length(p, P, scheme, R, n_theta, base=a)
+        return out
 
     def plot(out: Path, p: Particles, t: float, P) -> None:
         plot_cp(Path(out) / "cp.png", *wall_cp(p, P, walls, scheme, p_inf, q_inf), title=_title(cfg, p.n, t))
-        plot_field(Path(out) / "velocity_field.png", p, P, scheme, R, title=_title(cfg, p.n, t))
+        plot_field(Path(out) / "velocity_field.png", p, P, scheme, R, title=_title(cfg, p.n, t),
+                   outline=None if c["body"] == "circle" else np.asarray(walls.points(P).x))
 
     problem = Problem("cylinder", particles, params, scheme, domain, cfg["time"]["t_end"], metrics, plot,
                       config=cfg, description=_title(cfg, particles.n), boundary=walls, diagnostics=diagnostics,
@@ -347,8 +382,10 @@ def periodic_interpolate(theta: np.ndarray, f: np.ndarray, theta0: float) -> flo
     return float(np.dot(w, ys))
 
 
-def recirculation_length(p: Particles, P, scheme, radius: float, n_theta: int) -> float:
-    """L_w / D (module docstring)."""
+def recirculation_length(p: Particles, P, scheme, radius: float, n_theta: int, base: float | None = None) -> float:
+    """L_w / D (module docstring).  ``base``: x of the body's rear point for a mapped (elliptic)
+    layout at zero incidence (then x on the axis is the mean x of the two rays, which the map bends
+    towards the axis); None: the circle of ``radius``."""
     fluid = np.asarray(p.kind) == int(Kind.FLUID)
     x = np.asarray(p.x)[fluid]
     u = np.asarray(to_primitive(p.U, get_eos(scheme.eos), P).vel)[fluid, 0]
@@ -362,15 +399,19 @@ def recirculation_length(p: Particles, P, scheme, radius: float, n_theta: int) -
     rr = ru[order_u]
     ua = 0.5 * (u[up][order_u] + u[dn][order_d])
     xa = rr * math.cos(0.5 * dtheta)
+    if base is not None:
+        xa = 0.5 * (x[up, 0][order_u] + x[dn, 0][order_d])
+        radius = base
     back = np.flatnonzero(ua < 0.0)
     if back.size == 0:
         return 0.0
     ahead = np.flatnonzero((ua >= 0.0) & (np.arange(len(ua)) > back[0]))
+    D = 2.0 * float(P[f"geometry.{BODY}.radius"]) if base is not None else 2.0 * radius
     if ahead.size == 0:
-        return float((xa[-1] - radius) / (2.0 * radius))
+        return float((xa[-1] - radius) / D)
     k = int(ahead[0])
     x0 = xa[k - 1] + (xa[k] - xa[k - 1]) * (-ua[k - 1]) / (ua[k] - ua[k - 1])
-    return float((x0 - radius) / (2.0 * radius))
+    return float((x0 - radius) / D)
 
 
 def plot_cp(path: Path, theta, cp, title: str = "") -> None:
@@ -389,7 +430,8 @@ def plot_cp(path: Path, theta, cp, title: str = "") -> None:
     fig.savefig(path, dpi=120)
 
 
-def plot_field(path: Path, p: Particles, P, scheme, radius: float, title: str = "", grid: int = 161) -> None:
+def plot_field(path: Path, p: Particles, P, scheme, radius: float, title: str = "", grid: int = 161,
+               outline=None) -> None:
     """Speed contours with streamlines near the body (thesis Fig. 4.8), the particle velocities
     interpolated linearly (``scipy.interpolate.griddata``) onto a grid of [-2D, 5D] x [-2D, 2D]."""
     from scipy.interpolate import griddata
@@ -401,7 +443,12 @@ def plot_field(path: Path, p: Particles, P, scheme, radius: float, title: str = 
     X, Y = np.meshgrid(gx, gy)
     U = griddata(x, vel[:, 0], (X, Y), method="linear")
     V = griddata(x, vel[:, 1], (X, Y), method="linear")
-    inside = np.hypot(X, Y) < radius
+    if outline is None:
+        inside = np.hypot(X, Y) < radius
+    else:
+        from matplotlib.path import Path as Outline
+
+        inside = Outline(outline).contains_points(np.c_[X.ravel(), Y.ravel()]).reshape(X.shape)
     U[inside] = V[inside] = np.nan
     fig, ax = subplots(figsize=(8.0, 4.0))
     cs = ax.contourf(X / D, Y / D, np.hypot(U, V), levels=24, cmap="viridis")
@@ -409,8 +456,10 @@ def plot_field(path: Path, p: Particles, P, scheme, radius: float, title: str = 
     ax.streamplot(gx / D, gy / D, np.nan_to_num(U), np.nan_to_num(V), density=1.4, color="w", linewidth=0.5,
                   arrowsize=0.5)
     from matplotlib.patches import Circle as Disc
+    from matplotlib.patches import Polygon as Patch
 
-    ax.add_patch(Disc((0.0, 0.0), 0.5, color="0.6"))
+    ax.add_patch(Disc((0.0, 0.0), radius / D, color="0.6") if outline is None
+                 else Patch(np.asarray(outline) / D, closed=True, color="0.6"))
     ax.set_aspect("equal")
     ax.set_xlabel("x / D")
     ax.set_ylabel("y / D")

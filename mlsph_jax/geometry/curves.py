@@ -42,6 +42,8 @@ from ..registry import Registry
 CURVES: Registry = Registry("geometry.kind", protocol=("points", "defaults"), doc="wall and body curves")
 
 FLUID_SIDES = ("outside", "inside")
+#: How a :class:`StreamEllipse` realises its angle of attack.
+INCIDENCES = ("body", "stream")
 
 
 @jax.tree_util.register_dataclass
@@ -237,14 +239,21 @@ class StreamEllipse(Ellipse):
     """Ellipse of a body in a stream along +x, parametrised for shape studies: the equal-area
     ``radius`` R (area pi R^2), the ``aspect`` ratio A = a/b of the semi-axes along and across
     its chord, so a = R sqrt(A), b = R / sqrt(A), and the angle of attack ``alpha`` (radians,
-    nose up: the a-axis turned by -alpha, clockwise, so the leading edge at -x rises).  A = 1,
+    nose up).  ``incidence``: ``"body"`` turns the a-axis by -alpha (clockwise, so the leading
+    edge at -x rises); ``"stream"`` keeps the a-axis along +x and leaves alpha to the user of the
+    curve, who turns the free stream to the direction (cos alpha, sin alpha) instead (the same
+    flow seen in a frame turned by alpha; the ``cylinder`` case does so, decision 65).  A = 1,
     alpha = 0 is the :class:`Circle` of radius R, bit for bit (sqrt(1) = 1, sin(-0) = -0)."""
 
     radius: float = 0.5
     aspect: float = 1.0
     alpha: float = 0.0
+    incidence: str = "body"
 
     def _check_shape(self):
+        if self.incidence not in INCIDENCES:
+            raise InputError(f"invalid {self.key('incidence')}={self.incidence!r}; allowed: "
+                             f"{', '.join(map(repr, INCIDENCES))}")
         for field, lo in (("radius", 0.0), ("aspect", 0.0), ("alpha", None)):
             v = getattr(self, field)
             ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
@@ -258,7 +267,8 @@ class StreamEllipse(Ellipse):
 
     def _axes(self, params):
         r, s = params[self.key("radius")], jnp.sqrt(params[self.key("aspect")])
-        return jnp.stack([r * s, r / s]), -params[self.key("alpha")]
+        alpha = params[self.key("alpha")]
+        return jnp.stack([r * s, r / s]), (-alpha if self.incidence == "body" else jnp.zeros_like(alpha))
 
 
 @dataclasses.dataclass(frozen=True)
