@@ -123,10 +123,10 @@ def test_bad_ellipse_configs_name_the_key(overrides, words):
 
 # --- derivatives ----------------------------------------------------------------------------
 
-def _euler_coefficients(pb):
-    """``f(theta) -> (C_D, C_L)`` of the state one forward-Euler step (dt 2e-3) after the impulsive
-    start, on the layout for the shape ``theta`` = {alpha, aspect} (the neighbour list of the
-    problem's own layout)."""
+def _euler_coefficients(pb, steps: int = 1):
+    """``f(theta) -> (C_D, C_L)`` of the state ``steps`` (0 or 1) forward-Euler steps (dt 2e-3)
+    after the impulsive start, on the layout for the shape ``theta`` = {alpha, aspect} (the
+    neighbour list of the problem's own layout)."""
     from mlsph_jax.differentiable import with_param
     from mlsph_jax.rhs import geometry, rhs
     from mlsph_jax.run import setup_run
@@ -138,10 +138,11 @@ def _euler_coefficients(pb):
         for k, v in theta.items():
             P = with_param(P, k, v)
         p = pb.particles_at(P)
-        g = geometry(p.x, p.vol, nl, pb.scheme, pb.domain)
-        _, _, dq = rhs(p, P, g, pb.scheme, pb.boundary)
-        p1 = p.replace(q=p.q + 2e-3 * dq)
-        co = pb.differentiable_metrics(p1, 0.0, P)
+        if steps:
+            g = geometry(p.x, p.vol, nl, pb.scheme, pb.domain)
+            _, _, dq = rhs(p, P, g, pb.scheme, pb.boundary)
+            p = p.replace(q=p.q + 2e-3 * dq)
+        co = pb.differentiable_metrics(p, 0.0, P)
         return jnp.stack([co["cd"], co["cl"]])
 
     return f
@@ -152,21 +153,25 @@ def _fd(fj, th, k):
     return (np.asarray(fj({**th, k: th[k] + h})) - np.asarray(fj({**th, k: th[k] - h}))) / (2 * h)
 
 
-def test_zero_incidence_symmetry_and_shape_derivatives_match_fd():
-    """Physics and derivatives on one forward-Euler step of the whole right-hand side (the layout,
-    the wall quadrature, the MLS geometry and the boundary term all move with the aspect, the
-    stream with alpha), forward-mode autodiff (``jax.jvp``; one compilation for every direction):
-    for the ellipse A = 2 at alpha = 0 the flow is mirror-symmetric, so C_L = 0 and d C_D / d alpha
-    = 0 (to round-off) while d C_L / d alpha != 0 (incidence makes lift); at alpha = 6 deg the
-    derivatives w.r.t. alpha and aspect match central finite differences to 1e-6.  Reverse mode:
-    the slow tests below."""
+@pytest.mark.parametrize("steps", [0, pytest.param(1, marks=pytest.mark.slow)])
+def test_zero_incidence_symmetry_and_shape_derivatives_match_fd(steps):
+    """Physics and derivatives of the force coefficients of the impulsively started stream
+    (``steps`` = 0: the body's wall state, Rusanov wall pressure and constrained viscous fit on the
+    free stream; 1 (slow, ~40 s of compilation): after one forward-Euler step of the whole
+    right-hand side, the MLS geometry included).  The layout and wall quadrature move with the
+    aspect, the stream with alpha; forward-mode autodiff (``jax.jvp``, one compilation for every
+    direction and the values).  For the ellipse A = 2 at alpha = 0 the flow is mirror-symmetric,
+    so C_L = 0 and d C_D / d alpha = 0 (to round-off) while d C_L / d alpha != 0 (incidence makes
+    lift); at alpha = 6 deg the derivatives w.r.t. alpha and aspect match central finite
+    differences to 1e-6.  Reverse mode: the slow tests below."""
     _, pb = _problem("case.body=\"ellipse\"", "case.aspect=2.0")
-    f = _euler_coefficients(pb)
-    fj = jax.jit(f)
-    jvp = jax.jit(lambda th, k: jax.jvp(f, (th,), (k,))[1])
+    f = _euler_coefficients(pb, steps)
+    both = jax.jit(lambda th, k: jax.jvp(f, (th,), (k,)))      # (value, derivative): one compilation
     unit = {k: {q: jnp.asarray(float(q == k)) for q in (ALPHA, ASPECT)} for k in (ALPHA, ASPECT)}
+    fj = lambda th: both(th, unit[ALPHA])[0]  # noqa: E731
+    jvp = lambda th, k: both(th, k)[1]  # noqa: E731
     th0 = {ALPHA: jnp.asarray(0.0), ASPECT: jnp.asarray(2.0)}
-    (cd, cl), (dcd, dcl) = fj(th0), jvp(th0, unit[ALPHA])
+    (cd, cl), (dcd, dcl) = both(th0, unit[ALPHA])
     assert abs(float(cl)) <= 1e-12 * abs(float(cd))
     assert abs(float(dcd)) <= 1e-10 * abs(float(cd))
     assert abs(float(dcl)) > 1e-2 * abs(float(cd))
