@@ -353,6 +353,8 @@ CYLINDER = register_case(
 def _title(cfg, n: int, t: float | None = None) -> str:
     s, c = cfg["scheme"], cfg["case"]
     when = f", t={t:.4g}" if t is not None else ""
+    if c["body"] == "ellipse":
+        when += f", ellipse A={c['aspect']:g}, alpha={c['alpha']:g} deg"
     return (f"cylinder (Re={c['re']:g}, M={c['mach']:g}, {c['n_theta']} on the body, {n} particles{when}): "
             f"{s['method']}, reconstruction degree {s['reconstruction_degree']}")
 
