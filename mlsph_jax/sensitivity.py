@@ -18,6 +18,11 @@ learning rate suits parameters of any magnitude.  Loss: the mean over columns of
 misfit at the observed times (the simulated series linearly interpolated), each column divided by
 the mean square of its observations.
 
+A problem whose initial particles depend on its parameters (the ``cylinder`` case: the
+body-fitted layout follows ``geometry.body.*``, docs/architecture.md decision 65) carries
+``particles_at(params) -> Particles``; every objective starts its run from
+:func:`initial_particles`, so shape derivatives include the motion of the layout.
+
 Every forward run is checked: the :class:`~mlsph_jax.differentiable.SimOutput` (with its status
 word) is returned as auxiliary output of the differentiated function and checked on the host
 (:func:`mlsph_jax.differentiable.check`), so a run that fails (NaN, inadmissible state, a step
@@ -46,6 +51,12 @@ def _simulate_for(problem, **kw):
     return make_simulate(problem, **kw)
 
 
+def initial_particles(problem, params: Params):
+    """The run's initial particles for ``params``: ``problem.particles_at(params)`` when the
+    problem's layout depends on its parameters (a body-fitted layout), else ``problem.particles``."""
+    return problem.particles if problem.particles_at is None else problem.particles_at(params)
+
+
 def objective_names(problem, simulate) -> list[str]:
     """Objectives ``--of`` accepts for ``problem``."""
     out = jax.eval_shape(simulate, problem.params, problem.particles)
@@ -65,7 +76,7 @@ def make_objective(problem, simulate, of: str):
     t_end = simulate.n_steps * simulate.dt
 
     def f(params):
-        out = simulate(params, problem.particles)
+        out = simulate(params, initial_particles(problem, params))
         if of.endswith("_final") and of[:-6] in out.series:
             val = out.series[of[:-6]][-1]
         elif of.endswith("_mean") and of[:-5] in out.series:
@@ -249,7 +260,8 @@ def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], ste
     theta0 = {k: jnp.asarray(problem.params[k], jnp.float64) for k in fit}
 
     def loss(s):
-        out = simulate(_params_at(problem.params, fit, theta0, s), problem.particles)
+        prm = _params_at(problem.params, fit, theta0, s)
+        out = simulate(prm, initial_particles(problem, prm))
         terms = [jnp.mean((jnp.interp(t_obs, out.times, out.series[c]) - obs[c]) ** 2) / scale[c] for c in cols]
         return sum(terms) / len(terms), out
 

@@ -64,7 +64,10 @@ class Problem:
     ``steady_tol`` (relative to its maximum, per unit of time) between two output times.
     ``differentiable_diagnostics`` / ``differentiable_metrics``: jnp versions recorded by
     :func:`mlsph_jax.differentiable.make_simulate` (time series) and offered as objectives by
-    :mod:`mlsph_jax.sensitivity`."""
+    :mod:`mlsph_jax.sensitivity`.  ``particles_at(params) -> Particles``: the initial particles
+    as a jnp function of the parameters, for a layout that follows them (the cylinder's
+    body-fitted layout of an elliptic body, decision 65); ``None``: ``particles`` for any
+    parameters."""
 
     case: str
     particles: Particles
@@ -81,6 +84,7 @@ class Problem:
     steady_tol: float = 0.0
     differentiable_diagnostics: Callable[[Particles, float, Params], Mapping] | None = None
     differentiable_metrics: Callable[[Particles, float, Params], Mapping] | None = None
+    particles_at: Callable[[Params], Particles] | None = None
 
 
 @dataclasses.dataclass

@@ -12,7 +12,25 @@ to r = 80 D and 4 far-field rings).
 Body.  No-slip adiabatic wall by the boundary integral of thesis eq. 4.24
 (:mod:`mlsph_jax.wall_integral`, ``boundary_integral``; SPEC §5.8): a
 :class:`~mlsph_jax.geometry.Circle` named ``body`` with ``n_theta`` quadrature points, no ghosts.
-The body's centre and radius are the parameters ``geometry.body.centre`` / ``geometry.body.radius``.
+The body's centre and radius are the parameters ``geometry.body.centre`` / ``geometry.body.radius``
+of the problem's Params; the layout follows them (below), so ``mlsph sensitivity --wrt
+geometry.body.radius`` moves the particles with the body.
+
+Elliptic body (``case.body = "ellipse"``; decision 65).  A
+:class:`~mlsph_jax.geometry.StreamEllipse` of the same area pi R^2: aspect ratio A = a/b
+(``case.aspect``, parameter ``geometry.body.aspect``), a = R sqrt(A) along x, b = R / sqrt(A),
+and angle of attack alpha (``case.alpha`` in degrees, parameter ``geometry.body.alpha`` in
+radians, nose up).  The angle of attack turns the free stream to U_inf (cos alpha, sin alpha)
+(initial state, far field and the force projection: C_D along the stream, C_L across it), not
+the body: the same flow seen in a frame turned by alpha, in which the body, its layout, the
+neighbour lists and the set-up geometry of the in-run wall-crossing check do not depend on
+alpha.  The layout is the circle's polar layout carried by the Joukowski map z = zeta + c^2 /
+zeta (:func:`~mlsph_jax.cases.layouts.elliptic_polar_layout`): body-fitted, cells kept square,
+volumes the exact areas of the mapped cells.  ``problem.particles_at(params)`` gives the initial
+particles as a jnp function of the Params (positions and volumes of the shape, state of the
+stream direction), which :mod:`mlsph_jax.sensitivity` starts every differentiated run from.  The
+coefficients' length is D = 2R (the equal-area diameter; the chord is 2a).  The recirculation
+length of an ellipse is reported at alpha = 0 only (behind the rear point x = a).
 
 Far field (SPEC §5.8 [REC], §8.5).  Beyond ``r_far`` the geometric rings continue as FROZEN
 particles (:class:`~mlsph_jax.state.Kind`) holding the free-stream state: the integrator never
@@ -63,7 +81,7 @@ from ..boundaries import BOUNDARIES
 from ..config import effective_beta
 from ..eos import get_eos, to_conservative, to_primitive
 from ..errors import ConfigError, InputError
-from ..geometry import Circle
+from ..geometry import Circle, StreamEllipse
 from ..kernels import get_kernel
 from ..plotting import subplots
 from ..reference import cylinder as ref
@@ -72,7 +90,7 @@ from ..simulation import Problem
 from ..state import Domain, Kind, Params, Particles, make_particles
 from .base import register_case
 from .common import params_from_config, scheme_from_config, steady_tol_key
-from .layouts import polar_layout, polar_ring_edges
+from .layouts import elliptic_polar_layout, polar_layout, polar_ring_edges
 
 #: Free-stream density and speed (the scales of the coefficients).
 RHO_INF = 1.0
@@ -80,6 +98,8 @@ U_INF = 1.0
 #: Name of the body's curve (``geometry.body.*`` parameters).
 BODY = "body"
 _NAMES = ("case.radius", "case.n_theta", "case.r_far")
+#: ``case.body`` choices: the curve of each.
+BODIES = ("circle", "ellipse")
 
 
 def cylinder_viscosity(cfg: Mapping) -> float:
@@ -145,6 +165,10 @@ def check_cylinder(cfg: dict) -> None:
                             f"case.n_theta={c['n_theta']}: the far-field rings start inside the support of the "
                             f"body's wall points (out to r = {need:.4g}), the body is too big for the layout; "
                             f"allowed: case.r_far > {need:.4g} (or a smaller case.radius)")
+    if c["body"] == "circle" and (c["aspect"] != 1.0 or c["alpha"] != 0.0):
+        problems.append(f"invalid case.aspect={show(c['aspect'])} / case.alpha={show(c['alpha'])} with "
+                        "case.body=\"circle\": a circle has aspect 1 and no angle of attack; allowed: "
+                        "case.body = \"ellipse\" (or aspect 1 and alpha 0)")
     bf = phys["body_force"]
     if bf and any(f != 0.0 for f in bf):
         p_inf = RHO_INF * (U_INF / c["mach"]) ** 2 / cfg["eos"]["gamma"]
@@ -172,6 +196,16 @@ CYLINDER_KEYS: dict[str, Key] = {
     "r_far": Key(float, 40.0, minimum=0.0, exclusive_minimum=True, unit="m",
                  doc="outer radius of the fluid region (frozen free-stream rings beyond it); "
                      "thesis setup: 40 with n_theta = 120 (10,800 particles)"),
+    "body": Key(str, "circle", choices=BODIES,
+                doc="the body: a circle of case.radius, or an ellipse of the same area (equal-area radius "
+                    "case.radius, aspect ratio case.aspect, angle of attack case.alpha) on the conformally "
+                    "mapped polar layout (docs/architecture.md decision 65)"),
+    "aspect": Key(float, 1.0, minimum=0.0, exclusive_minimum=True,
+                  doc="ellipse only: aspect ratio a/b of the semi-axes along/across its chord, a = R sqrt(aspect), "
+                      "b = R / sqrt(aspect) (R = case.radius; parameter geometry.body.aspect)"),
+    "alpha": Key(float, 0.0, minimum=-90.0, maximum=90.0, unit="deg",
+                 doc="ellipse only: angle of attack, nose up, in degrees (realised by turning the free stream "
+                     "to (cos alpha, sin alpha); parameter geometry.body.alpha in radians)"),
     "steady_tol": steady_tol_key(1e-3),
 }
 
@@ -181,16 +215,46 @@ def run_config(cfg: Mapping) -> dict:
     return {**cfg, "physics": {**cfg["physics"], "mu": cylinder_viscosity(cfg)}}
 
 
-def free_stream(cfg: Mapping, x: np.ndarray, params: Params):
+def free_stream(cfg: Mapping, x: np.ndarray, params: Params, xp=np):
     """``(rho, vel, p)`` of the free stream at ``x[N, 2]`` (the isothermal hydrostatic atmosphere
-    when there is a body force; module docstring)."""
+    when there is a body force; module docstring); ``xp``: numpy or jax.numpy (traceable in x)."""
     c = cfg["case"]
     p_inf = RHO_INF * (U_INF / c["mach"]) ** 2 / cfg["eos"]["gamma"]
     bf = cfg["physics"]["body_force"]
     f = np.asarray(bf if bf else [0.0, 0.0], float)
-    p = p_inf * np.exp(RHO_INF * (x @ f) / p_inf)
-    vel = np.tile([U_INF, 0.0], (len(x), 1))
+    p = p_inf * xp.exp(RHO_INF * (x @ f) / p_inf)
+    vel = xp.tile(stream_velocity(params, xp), (len(x), 1))
     return RHO_INF * p / p_inf, vel, p
+
+
+def stream_velocity(params: Params, xp=np):
+    """The free-stream velocity U_inf (cos alpha, sin alpha): an elliptic body's angle of attack
+    ``geometry.body.alpha`` turns the stream, not the body (decision 65); (U_inf, 0) without it."""
+    key = f"geometry.{BODY}.alpha"
+    if key not in params:
+        return xp.asarray([U_INF, 0.0])
+    a = params[key]
+    return U_INF * xp.stack([xp.cos(a), xp.sin(a)])
+
+
+def body_curve(cfg: Mapping):
+    """The body's curve: a :class:`~mlsph_jax.geometry.Circle` of ``case.radius``, or for
+    ``case.body = "ellipse"`` the :class:`~mlsph_jax.geometry.StreamEllipse` of equal-area radius
+    ``case.radius``, aspect ``case.aspect`` and angle of attack ``case.alpha`` (degrees in the
+    config, radians in ``geometry.body.alpha``); ``case.n_theta`` quadrature points."""
+    c = cfg["case"]
+    if c["body"] == "ellipse":
+        return StreamEllipse(BODY, radius=float(c["radius"]), aspect=float(c["aspect"]),
+                             alpha=math.radians(c["alpha"]), incidence="stream", n_points=c["n_theta"])
+    return Circle(BODY, centre=(0.0, 0.0), radius=float(c["radius"]), n_points=c["n_theta"])
+
+
+def body_layout(body, edges, n_theta: int, params):
+    """``(x[N, 2], vol[N])`` of the body-fitted layout for the body's parameters in ``params``
+    (jnp, differentiable in every ``geometry.body.*`` shape parameter: centre, radius, aspect,
+    angle of attack; :func:`~mlsph_jax.cases.layouts.elliptic_polar_layout`)."""
+    semi_axes, angle = body._axes(params)
+    return elliptic_polar_layout(edges, n_theta, params[body.key("centre")], semi_axes, angle)
 
 
 def build(cfg: Mapping) -> Problem:
@@ -204,22 +268,37 @@ def build(cfg: Mapping) -> Problem:
     lay = polar_layout(R, n_theta, c["r_far"], n_frozen, names=_NAMES)
     n_fluid_rings = len(lay.edges) - 1 - n_frozen
     kind = np.where(lay.ring < n_fluid_rings, int(Kind.FLUID), int(Kind.FROZEN))
-    rho, vel, p = free_stream(cfg, lay.x, params)
+    body = body_curve(cfg)
+    # the body's geometry parameters live in the Params (differentiable, `mlsph sensitivity --wrt`)
+    params = params.updated({k: jnp.asarray(v, jnp.float64) for k, v in body.defaults().items()})
+    x, vol = (np.asarray(a) for a in body_layout(body, lay.edges, n_theta, params))
+    rho, vel, p = free_stream(cfg, x, params)
     U = to_conservative(jnp.asarray(rho), jnp.asarray(vel), jnp.asarray(p), eos, params)
-    pf = make_particles(lay.x, lay.vol, U, kind=kind, ppd=np.full(len(lay.x), scheme.reconstruction_degree))
-    half = float(lay.edges[-1]) * 1.01
+    pf = make_particles(x, vol, U, kind=kind, ppd=np.full(len(x), scheme.reconstruction_degree))
+    half = float(np.max(np.abs(x))) * 1.01 if c["body"] == "ellipse" else float(lay.edges[-1]) * 1.01
     domain = Domain((-half, -half), (half, half), (False, False))
-    body = Circle(BODY, centre=(0.0, 0.0), radius=float(R), n_points=n_theta)
     band = R * 2.0 * math.pi / n_theta
     particles, walls = BOUNDARIES.get("boundary_integral").setup(pf, [], band, params, scheme.eos, scheme=scheme,
                                                                  domain=domain, curves=(body,))
     _check_far_field_apart(walls, particles)
+
+    def particles_at(P) -> Particles:
+        """The initial particles for the parameters ``P`` (jnp, differentiable): the layout
+        follows the body's shape parameters, the state is the free stream on it.  The topology
+        (neighbour lists, sized from ``problem.particles``) is not re-planned: for the small
+        changes of a gradient or an optimisation step at fixed aspect (a rotation keeps every
+        pair distance) it stays valid (decision 65)."""
+        xj, vj = body_layout(body, lay.edges, n_theta, P)
+        r_, v_, p_ = free_stream(cfg, xj, P, xp=jnp)
+        Uj = to_conservative(r_, v_, p_, eos, P)
+        return particles.replace(x=xj, vol=vj, q=vj[:, None] * Uj)
     p_inf = float(free_stream(cfg, np.zeros((1, 2)), params)[2][0])
     q_inf = 0.5 * RHO_INF * U_INF ** 2
 
     def coefficients(p: Particles, t: float, P) -> dict:
         """C_D, C_L and their parts (jnp, differentiable)."""
-        co = walls.coefficients(p, P, scheme, rho_inf=RHO_INF, u_inf=(U_INF, 0.0), length=2.0 * R, curve=BODY)
+        co = walls.coefficients(p, P, scheme, rho_inf=RHO_INF, u_inf=stream_velocity(P, jnp),
+                                length=2.0 * P[body.key("radius")], curve=BODY)
         return {**co, "cd_viscous": co["cd"] - co["cd_pressure"], "cl_viscous": co["cl"] - co["cl_pressure"]}
 
     def diagnostics(p: Particles, t: float, P) -> dict[str, float]:
@@ -230,15 +309,22 @@ def build(cfg: Mapping) -> Problem:
         return out
 
     def metrics(p: Particles, t: float, P) -> dict[str, float]:
-        return {**diagnostics(p, t, P), "recirculation_length": recirculation_length(p, P, scheme, R, n_theta)}
+        out = diagnostics(p, t, P)
+        if c["body"] == "circle":
+            out["recirculation_length"] = recirculation_length(p, P, scheme, R, n_theta)
+        elif float(P[body.key("alpha")]) == 0.0:   # at incidence the wake leaves off the layout's rays
+            a = float(body._axes(P)[0][0]) + float(P[body.key("centre")][0])
+            out["recirculation_length"] = recirculation_length(p, P, scheme, R, n_theta, base=a)
+        return out
 
     def plot(out: Path, p: Particles, t: float, P) -> None:
         plot_cp(Path(out) / "cp.png", *wall_cp(p, P, walls, scheme, p_inf, q_inf), title=_title(cfg, p.n, t))
-        plot_field(Path(out) / "velocity_field.png", p, P, scheme, R, title=_title(cfg, p.n, t))
+        plot_field(Path(out) / "velocity_field.png", p, P, scheme, R, title=_title(cfg, p.n, t),
+                   outline=None if c["body"] == "circle" else np.asarray(walls.points(P).x))
 
     return Problem("cylinder", particles, params, scheme, domain, cfg["time"]["t_end"], metrics, plot,
                    config=cfg, description=_title(cfg, particles.n), boundary=walls, diagnostics=diagnostics,
-                   steady_tol=c["steady_tol"], differentiable_metrics=coefficients)
+                   steady_tol=c["steady_tol"], differentiable_metrics=coefficients, particles_at=particles_at)
 
 
 def _check_far_field_apart(walls, p: Particles) -> None:
@@ -263,6 +349,8 @@ CYLINDER = register_case(
 def _title(cfg, n: int, t: float | None = None) -> str:
     s, c = cfg["scheme"], cfg["case"]
     when = f", t={t:.4g}" if t is not None else ""
+    if c["body"] == "ellipse":
+        when += f", ellipse A={c['aspect']:g}, alpha={c['alpha']:g} deg"
     return (f"cylinder (Re={c['re']:g}, M={c['mach']:g}, {c['n_theta']} on the body, {n} particles{when}): "
             f"{s['method']}, reconstruction degree {s['reconstruction_degree']}")
 
@@ -292,8 +380,10 @@ def periodic_interpolate(theta: np.ndarray, f: np.ndarray, theta0: float) -> flo
     return float(np.dot(w, ys))
 
 
-def recirculation_length(p: Particles, P, scheme, radius: float, n_theta: int) -> float:
-    """L_w / D (module docstring)."""
+def recirculation_length(p: Particles, P, scheme, radius: float, n_theta: int, base: float | None = None) -> float:
+    """L_w / D (module docstring).  ``base``: x of the body's rear point for a mapped (elliptic)
+    layout at zero incidence (then x on the axis is the mean x of the two rays, which the map bends
+    towards the axis); None: the circle of ``radius``."""
     fluid = np.asarray(p.kind) == int(Kind.FLUID)
     x = np.asarray(p.x)[fluid]
     u = np.asarray(to_primitive(p.U, get_eos(scheme.eos), P).vel)[fluid, 0]
@@ -307,15 +397,19 @@ def recirculation_length(p: Particles, P, scheme, radius: float, n_theta: int) -
     rr = ru[order_u]
     ua = 0.5 * (u[up][order_u] + u[dn][order_d])
     xa = rr * math.cos(0.5 * dtheta)
+    if base is not None:
+        xa = 0.5 * (x[up, 0][order_u] + x[dn, 0][order_d])
+        radius = base
     back = np.flatnonzero(ua < 0.0)
     if back.size == 0:
         return 0.0
     ahead = np.flatnonzero((ua >= 0.0) & (np.arange(len(ua)) > back[0]))
+    D = 2.0 * float(P[f"geometry.{BODY}.radius"]) if base is not None else 2.0 * radius
     if ahead.size == 0:
-        return float((xa[-1] - radius) / (2.0 * radius))
+        return float((xa[-1] - radius) / D)
     k = int(ahead[0])
     x0 = xa[k - 1] + (xa[k] - xa[k - 1]) * (-ua[k - 1]) / (ua[k] - ua[k - 1])
-    return float((x0 - radius) / (2.0 * radius))
+    return float((x0 - radius) / D)
 
 
 def plot_cp(path: Path, theta, cp, title: str = "") -> None:
@@ -334,7 +428,8 @@ def plot_cp(path: Path, theta, cp, title: str = "") -> None:
     fig.savefig(path, dpi=120)
 
 
-def plot_field(path: Path, p: Particles, P, scheme, radius: float, title: str = "", grid: int = 161) -> None:
+def plot_field(path: Path, p: Particles, P, scheme, radius: float, title: str = "", grid: int = 161,
+               outline=None) -> None:
     """Speed contours with streamlines near the body (thesis Fig. 4.8), the particle velocities
     interpolated linearly (``scipy.interpolate.griddata``) onto a grid of [-2D, 5D] x [-2D, 2D]."""
     from scipy.interpolate import griddata
@@ -346,7 +441,12 @@ def plot_field(path: Path, p: Particles, P, scheme, radius: float, title: str = 
     X, Y = np.meshgrid(gx, gy)
     U = griddata(x, vel[:, 0], (X, Y), method="linear")
     V = griddata(x, vel[:, 1], (X, Y), method="linear")
-    inside = np.hypot(X, Y) < radius
+    if outline is None:
+        inside = np.hypot(X, Y) < radius
+    else:
+        from matplotlib.path import Path as Outline
+
+        inside = Outline(outline).contains_points(np.c_[X.ravel(), Y.ravel()]).reshape(X.shape)
     U[inside] = V[inside] = np.nan
     fig, ax = subplots(figsize=(8.0, 4.0))
     cs = ax.contourf(X / D, Y / D, np.hypot(U, V), levels=24, cmap="viridis")
@@ -354,8 +454,10 @@ def plot_field(path: Path, p: Particles, P, scheme, radius: float, title: str = 
     ax.streamplot(gx / D, gy / D, np.nan_to_num(U), np.nan_to_num(V), density=1.4, color="w", linewidth=0.5,
                   arrowsize=0.5)
     from matplotlib.patches import Circle as Disc
+    from matplotlib.patches import Polygon as Patch
 
-    ax.add_patch(Disc((0.0, 0.0), 0.5, color="0.6"))
+    ax.add_patch(Disc((0.0, 0.0), radius / D, color="0.6") if outline is None
+                 else Patch(np.asarray(outline) / D, closed=True, color="0.6"))
     ax.set_aspect("equal")
     ax.set_xlabel("x / D")
     ax.set_ylabel("y / D")

@@ -269,3 +269,54 @@ def polar_layout(radius: float, n_theta: int, r_far: float, n_extra: int = 0, ce
     c = np.asarray(centre, float)
     x = np.stack([c[0] + rc[ring] * np.cos(th), c[1] + rc[ring] * np.sin(th)], axis=1)
     return PolarLayout(x, area[ring], ring, edges)
+
+
+def elliptic_polar_layout(edges, n_theta: int, centre, semi_axes, angle):
+    """The polar layout of :func:`polar_layout` (ring ``edges`` about a circle of radius
+    ``edges[0]``) carried by a conformal map onto the region outside the ellipse with
+    ``semi_axes`` (a, b) turned by ``angle`` about ``centre``: ``(x[N, 2], vol[N])`` as jnp
+    functions of the shape (docs/architecture.md decision 65).
+
+    In the plane zeta = rho e^{i theta} the layout is the polar one scaled by s = rho_0 /
+    edges[0], rho_0 = (a + b) / 2; the Joukowski map z = zeta + c^2 / zeta, c^2 = (a^2 - b^2) / 4,
+    takes the circle rho_0 to the ellipse x = a cos theta, y = b sin theta (so every particle of
+    ray j stays above the quadrature point t_j = theta_j of the :class:`~mlsph_jax.geometry.Ellipse`)
+    and the rings to confocal ellipses; z is then turned by ``angle`` and shifted by ``centre``.
+    Conformal: the square polar cells stay square (the rings' grading and aspect are kept; the
+    cells shrink by |dz/dzeta| = |1 - c^2 / zeta^2| >= 2 min(a, b) / (a + b) at the body).  It is
+    one-to-one outside |zeta| = |c| < rho_0, so no particle enters the body.
+
+    Volumes: the exact areas of the mapped annular sectors, int |dz/dzeta|^2 dA over rho_1 < rho <
+    rho_2, theta_1 < theta < theta_2, i.e. (rho_2^2 - rho_1^2) dtheta / 2 - c^2 (sin 2 theta_2 -
+    sin 2 theta_1) ln(rho_2 / rho_1) + c^4 (rho_1^-2 - rho_2^-2) dtheta / 2; they sum to the area
+    between the body and the outer mapped ring, pi (rho_out^2 - c^4 / rho_out^2) - pi a b.
+
+    For a = b = edges[0], angle 0 and centre 0 every operation is exact (s = 1, c^2 = 0, cos 0 =
+    1, sin 0 = 0) and the result is :func:`polar_layout`'s bit for bit.  The angles' cosines and
+    sines are host constants (the angles are not parameters)."""
+    import jax.numpy as jnp
+
+    edges = np.asarray(edges, float)
+    n_theta = int(n_theta)
+    n_r = len(edges) - 1
+    dtheta = 2.0 * math.pi / n_theta
+    theta = (np.arange(n_theta) + 0.5) * dtheta
+    ring = np.repeat(np.arange(n_r), n_theta)
+    th = np.tile(theta, n_r)
+    lo, hi = np.tile(theta - 0.5 * dtheta, n_r), np.tile(theta + 0.5 * dtheta, n_r)
+    ab = jnp.asarray(semi_axes)
+    rho0 = 0.5 * (ab[0] + ab[1])
+    c2 = 0.25 * (ab[0] - ab[1]) * (ab[0] + ab[1])
+    s = rho0 / edges[0]
+    e = s * jnp.asarray(edges)
+    rc = 0.5 * (e[1:] + e[:-1])[ring]
+    zx = (rc + c2 / rc) * np.cos(th)
+    zy = (rc - c2 / rc) * np.sin(th)
+    ca, sa = jnp.cos(angle), jnp.sin(angle)
+    c = jnp.asarray(centre)
+    x = jnp.stack([c[0] + (ca * zx - sa * zy), c[1] + (sa * zx + ca * zy)], axis=1)
+    r1, r2 = e[:-1][ring], e[1:][ring]
+    vol = (0.5 * (r2 ** 2 - r1 ** 2) * dtheta
+           - c2 * (np.sin(2.0 * hi) - np.sin(2.0 * lo)) * jnp.log(r2 / r1)
+           + 0.5 * c2 * c2 * (1.0 / r1 ** 2 - 1.0 / r2 ** 2) * dtheta)
+    return x, vol

@@ -21,9 +21,11 @@ from .curves import (
     Polygon,
     Segment,
     Spline,
+    StreamEllipse,
     curve_params,
     quadrature,
 )
 
-__all__ = ["CURVES", "BoundaryPoints", "Circle", "Ellipse", "Polygon", "Segment", "Spline", "check_geometry",
+__all__ = ["CURVES", "BoundaryPoints", "Circle", "Ellipse", "Polygon", "Segment", "Spline", "StreamEllipse",
+           "check_geometry",
            "curve_params", "quadrature"]

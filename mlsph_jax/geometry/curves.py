@@ -7,7 +7,8 @@ shape:
 
 * :class:`Segment` — a straight wall from ``start`` to ``end``, the fluid on its left; midpoint
   rule on ``n_points`` equal pieces (exact for the length and for linear integrands).
-* :class:`Circle`, :class:`Ellipse` — closed smooth curves x(t) = c + R(angle) (a cos t, b sin t);
+* :class:`Circle`, :class:`Ellipse`, :class:`StreamEllipse` (an ellipse given by its equal-area
+  radius, aspect ratio and angle of attack) — closed smooth curves x(t) = c + R(angle) (a cos t, b sin t);
   the trapezoidal rule at t_k = 2 pi (k + 1/2) / n with dGamma_k = \\|x'(t_k)\\| 2 pi / n, which
   converges exponentially for the perimeter, the enclosed area and any smooth integrand.
 * :class:`Polygon` — closed polygon through ``vertices``; each edge cut into pieces no longer
@@ -41,6 +42,8 @@ from ..registry import Registry
 CURVES: Registry = Registry("geometry.kind", protocol=("points", "defaults"), doc="wall and body curves")
 
 FLUID_SIDES = ("outside", "inside")
+#: How a :class:`StreamEllipse` realises its angle of attack.
+INCIDENCES = ("body", "stream")
 
 
 @jax.tree_util.register_dataclass
@@ -232,6 +235,43 @@ class Circle(Ellipse):
 
 
 @dataclasses.dataclass(frozen=True)
+class StreamEllipse(Ellipse):
+    """Ellipse of a body in a stream along +x, parametrised for shape studies: the equal-area
+    ``radius`` R (area pi R^2), the ``aspect`` ratio A = a/b of the semi-axes along and across
+    its chord, so a = R sqrt(A), b = R / sqrt(A), and the angle of attack ``alpha`` (radians,
+    nose up).  ``incidence``: ``"body"`` turns the a-axis by -alpha (clockwise, so the leading
+    edge at -x rises); ``"stream"`` keeps the a-axis along +x and leaves alpha to the user of the
+    curve, who turns the free stream to the direction (cos alpha, sin alpha) instead (the same
+    flow seen in a frame turned by alpha; the ``cylinder`` case does so, decision 65).  A = 1,
+    alpha = 0 is the :class:`Circle` of radius R, bit for bit (sqrt(1) = 1, sin(-0) = -0)."""
+
+    radius: float = 0.5
+    aspect: float = 1.0
+    alpha: float = 0.0
+    incidence: str = "body"
+
+    def _check_shape(self):
+        if self.incidence not in INCIDENCES:
+            raise InputError(f"invalid {self.key('incidence')}={self.incidence!r}; allowed: "
+                             f"{', '.join(map(repr, INCIDENCES))}")
+        for field, lo in (("radius", 0.0), ("aspect", 0.0), ("alpha", None)):
+            v = getattr(self, field)
+            ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+            if not ok or (lo is not None and v <= lo):
+                what = "a finite angle in radians" if lo is None else "a finite number > 0"
+                raise InputError(f"invalid {self.key(field)}={v!r}; allowed: {what}")
+
+    def defaults(self) -> dict:
+        return {self.key("centre"): self.centre, self.key("radius"): float(self.radius),
+                self.key("aspect"): float(self.aspect), self.key("alpha"): float(self.alpha), **self._motion()}
+
+    def _axes(self, params):
+        r, s = params[self.key("radius")], jnp.sqrt(params[self.key("aspect")])
+        alpha = params[self.key("alpha")]
+        return jnp.stack([r * s, r / s]), (-alpha if self.incidence == "body" else jnp.zeros_like(alpha))
+
+
+@dataclasses.dataclass(frozen=True)
 class Polygon(_Closed):
     """Closed polygon through ``vertices`` (either orientation); edges cut into pieces no longer
     than ``spacing`` (the counts are fixed by the initial vertices)."""
@@ -309,8 +349,8 @@ class Spline(_Closed):
         return self._finish(x, dx, dgamma, jnp.sign(_signed_area(P)), params, jnp.mean(P, axis=0))
 
 
-for _name, _cls in (("segment", Segment), ("circle", Circle), ("ellipse", Ellipse), ("polygon", Polygon),
-                    ("spline", Spline)):
+for _name, _cls in (("segment", Segment), ("circle", Circle), ("ellipse", Ellipse),
+                    ("stream_ellipse", StreamEllipse), ("polygon", Polygon), ("spline", Spline)):
     CURVES.register(_name, _cls)
 
 
