@@ -111,6 +111,19 @@ class ParticleSharding:
 
         return jax.tree_util.tree_map(put, tree)
 
+    def replicate(self, tree):
+        """``tree`` replicated on every device whatever its shape (the parameters: a parameter
+        array that happens to have N entries is not a per-particle field)."""
+        rep = NamedSharding(self.mesh, P())
+
+        def put(a):
+            if a is None:
+                return None
+            h = np.asarray(a)
+            return jax.make_array_from_callback(h.shape, rep, lambda idx: h[idx])
+
+        return jax.tree_util.tree_map(put, tree)
+
     def constrain(self, tree):
         """Inside ``jit``: pin the layout of ``tree`` to :meth:`spec_of` (so that a chunk's
         output carry has the sharding of its input and the compiled chunk is reused)."""

@@ -286,7 +286,12 @@ class Simulation:
             writer = io.SnapshotWriter(out, pb.particles.dim) if out is not None else None
             if out is not None and pb.config is not None:
                 io.write_config(out, pb.config)
-            carry = initial_carry(pb.particles)
+            p0 = pb.particles
+            if self.spatial and getattr(pb.boundary, "apply", None) is not None:
+                # ghosts regenerated once before the state is split: a halo copy of a ghost is
+                # only ever refreshed in q, so its x and vol must already be its owner's
+                p0 = pb.boundary.apply(p0, pb.params)
+            carry = initial_carry(p0)
             series = []
             if pb.diagnostics is not None:
                 series.append({"t": 0.0, **pb.diagnostics(pb.particles, 0.0, pb.params)})
@@ -303,7 +308,7 @@ class Simulation:
             deg0 = carry.degree if geom is None else self._host(geom.degree)
             writer.write(0.0, {**snapshot_fields(pb.particles, pb.params, pb.scheme),
                                **fallback.snapshot_fields(deg0, pb.scheme)}, attrs={"step": 0})
-        params = self._place(pb.params)
+        params = pb.params if self.sharding is None else self.sharding.replicate(pb.params)
         compile_time = chunk_time = 0.0
         memory = {}
         step_stop = self._place(jnp.asarray(self.max_steps, jnp.int32))

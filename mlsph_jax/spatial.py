@@ -270,6 +270,11 @@ class SpatialSharding:
 
         return self._base.place(jax.tree_util.tree_map(local, tree))
 
+    def replicate(self, tree):
+        """``tree`` replicated on every device (the parameters, which the shard_map takes as
+        replicated: :meth:`place` would permute an array of N entries as a per-particle field)."""
+        return self._base.replicate(tree)
+
     def gather(self, tree):
         """Host copy of ``tree`` with the local-layout arrays back in the original particle order."""
         pos = self.layout.pos
