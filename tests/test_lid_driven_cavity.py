@@ -290,6 +290,7 @@ def run24():
     return cfg, pb, run_problem(pb, cfg, out_dir=None, quiet=True)
 
 
+@pytest.mark.slow   # 63 s of CI time; the slow suite also holds the 40 x 40 Ghia runs of both wall types
 def test_re100_centerlines_match_ghia(run24):
     """24 x 24, Re = 100 to the steady state, the config's cubic reconstruction: max deviations
 from Ghia 0.0243 (u) and 0.0153 (v), rms 0.0125 / 0.0072 (bounds: + 25 %; with the quadratic
@@ -309,6 +310,21 @@ compared with Ghia's Re = 400 / 1000 tables the same state deviates by more than
     assert ts["ghia_u_max_abs_dev"][0] > 0.5 and ts["ghia_v_max_abs_dev"][0] > 0.2   # at rest
 
 
+def test_steady_state_stop_on_a_coarse_cavity():
+    """12 x 12 with case.steady_tol = 2e-2: the run stops at the first output time where the
+    relative velocity change per second falls below the tolerance (t = 3.5 of t_end = 10, outputs
+    every 0.5), records it, and every earlier rate after the start is at or above it."""
+    cfg = config.load(CFG, [*QUIET, "case.n=12", "time.t_end=10", "output.snapshots=20", "time.cfl=0.6",
+                            "case.steady_tol=2e-2"])
+    r = run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True)
+    st = r.summary["steady_state"]
+    assert st["converged"] and 2.0 <= st["t"] <= 6.0 and st["t"] == r.summary["t_final"] < 10.0, st
+    assert st["residual"] < st["tolerance"] == 2e-2
+    rate = r.summary["timeseries"]["velocity_change_rate"]
+    assert rate[-1] == pytest.approx(st["residual"], rel=1e-9) and all(x >= 2e-2 for x in rate[1:-1])
+
+
+@pytest.mark.slow   # shares the 24 x 24 run of the Ghia test
 def test_steady_state_stop(run24):
     """The relative velocity change per second between outputs falls below case.steady_tol at
 t = 9 (cubic reconstruction; quadratic: t = 6): the run stops before t_end = 10 and records it."""
