@@ -265,11 +265,15 @@ def test_linear_pressure_is_exact_in_every_row_including_the_corners(bi10):
 
 def test_no_net_mass_flux_through_the_walls():
     """In the conservative form (scheme.self_flux = false) the pair terms are antisymmetric and
-    the wall flux has no mass part: a run with the lid moving keeps the total mass to round-off."""
+    the wall flux has no mass part: a run with the lid moving keeps the total mass to round-off.
+    The cubic fits of the rows next to the walls fall back in degree on 12 x 12 (no ghosts complete
+    their stencils; 36 % of the particles here), which the run reports as it should."""
+    from mlsph_jax.errors import DegreeFallbackWarning
     from mlsph_jax.simulation import run_problem
 
     cfg = config.load(CFG, [*QUIET, *BI, "scheme.self_flux=false", "time.t_end=0.1", "output.snapshots=1"])
-    r = run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True)
+    with pytest.warns(DegreeFallbackWarning, match="degree fallback"):
+        r = run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True)
     assert r.summary["status"] == "ok" and r.summary["metrics"]["kinetic_energy"] > 1e-4
     assert abs(r.summary["conservation"]["mass"]) < 1e-13, r.summary["conservation"]
 
