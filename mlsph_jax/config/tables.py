@@ -16,6 +16,7 @@ from collections.abc import Mapping
 from ..registry import names_of, registry
 from ..schema import REQUIRED, Key
 from ..scheme import GEOMETRY_UPDATES
+from ..spatial import DECOMPOSITIONS
 
 __all__ = ["CASE_NAME", "EOS_KIND", "EOS_SCHEMAS", "OUTPUT_KEYS", "PHYSICS_KEYS", "RUN_KEYS", "SCHEMA_COMMON",
            "SCHEME_KEYS", "TABLES", "TABLE_DOCS", "TIME_KEYS", "all_eos_keys", "effective_beta", "eos_keys"]
@@ -236,7 +237,7 @@ RUN_KEYS: dict[str, Key] = {
                        "and not exceed len(jax.devices()) (host devices: "
                        "XLA_FLAGS=--xla_force_host_platform_device_count=N; several hosts: "
                        "jax.distributed.initialize)"),
-    "decomposition": Key(str, "index", choices=("index", "spatial"),
+    "decomposition": Key(str, "index", choices=DECOMPOSITIONS,
                          doc="how run.devices > 1 splits the particles: index = index ranges, XLA's SPMD "
                              "partitioner all-gathers the fields each stage (every frame); spatial = Morton-ordered "
                              "compact regions with a two-stencil halo exchanged by jax.shard_map collectives "
