@@ -118,9 +118,11 @@ def local_steps(particles: Particles, params: Params, scheme: Scheme, cfl: float
     return jnp.where(particles.kind == Kind.FLUID, dt, 0.0)
 
 
-def cfl_limiting_particle(particles: Particles, params: Params, scheme: Scheme):
-    """Index of the fluid particle with the smallest convective step dx_i / (|u_i - w_i| + c_i)."""
-    return jnp.argmin(_local_dt(jax.lax.stop_gradient(particles), params, scheme)).astype(jnp.int32)
+def cfl_limiting_particle(particles: Particles, params: Params, scheme: Scheme, ops=None):
+    """Index of the fluid particle with the smallest convective step dx_i / (|u_i - w_i| + c_i)
+    (``ops``: :class:`LocalOps` by default; the spatial decomposition's finds it over every shard)."""
+    ops = LocalOps() if ops is None else ops
+    return ops.argmin(_local_dt(jax.lax.stop_gradient(particles), params, scheme))
 
 
 def _local_dt(particles: Particles, params: Params, scheme: Scheme):
@@ -330,7 +332,7 @@ def step_status(p: Particles, newp: Particles, params: Params, scheme: Scheme, d
     if dt_min > 0:
         dt_bits = dt_bits | jnp.where((dt < dt_min) & ~last, jnp.int32(Status.DT_UNDERFLOW), 0)
     if dt_fixed or dt_min > 0:
-        limiting = ops.argmin(_local_dt(jax.lax.stop_gradient(p), params, scheme))   # cfl_limiting_particle
+        limiting = cfl_limiting_particle(p, params, scheme, ops)
         bits, bad = combine(bits, bad, dt_bits, jnp.where(dt_bits != 0, limiting, -1))
     return bits.astype(jnp.int32), bad.astype(jnp.int32)
 
