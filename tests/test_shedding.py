@@ -106,22 +106,31 @@ def test_crossings_and_spectrum_helpers():
 # --- the trigger -------------------------------------------------------------------------------------
 
 SMALL = ("case.n_theta=32", "case.r_far=4.0", "case.re=100", "case.mach=0.2", "case.steady_tol=0",
-         "time.local_time_stepping=false", "time.t_end=0.5", "output.snapshots=2", "output.plots=false",
+         "time.local_time_stepping=false", "time.t_end=0.1", "output.snapshots=2", "output.plots=false",
          "output.progress=false")
 
 
-def _run(*overrides):
-    from mlsph_jax.simulation import run_problem
+def _runs(*overrides):
+    """``(problem without trigger, its summary, problem with it, its summary)``: both initial states
+    through one Simulation (same layout, walls and settings: one compilation)."""
+    import dataclasses
+
+    from mlsph_jax.simulation import Simulation
 
     cfg = config_mod.load(CONFIG_DIR / "cylinder.toml", [*SMALL, *overrides])
-    pb = build_problem(cfg)
-    return pb, run_problem(pb, cfg, out_dir=None, quiet=True).summary
+    pb1 = build_problem(cfg)
+    pb0 = build_problem(config_mod.load(CONFIG_DIR / "cylinder.toml", list(SMALL)))
+    sim = Simulation(pb1, cfl=cfg["time"]["cfl"])
+    s1 = sim.run(None, snapshots=2, progress=False, plots=False).summary
+    sim.problem = dataclasses.replace(pb1, particles=pb0.particles)
+    s0 = sim.run(None, snapshots=2, progress=False, plots=False).summary
+    return pb0, s0, pb1, s1
 
 
 def test_trigger_breaks_the_mirror_symmetry():
     """Without the trigger the coarse Re = 100 start-up is mirror-symmetric to round-off (|C_L| <
-    1e-12 at every output, C_D ~ 1); with it the initial state is not its own mirror image and
-    |C_L| stays far above round-off through the run.  The trigger's field is divergence-free and
+    1e-12 at every output); with it the initial state is not its own mirror image and C_L swings
+    far above round-off (its sign changes: the wake oscillates).  The trigger's field is divergence-free and
     carries no circulation (a shielded vortex), and it leaves the far field at the free stream."""
     import jax
     import jax.numpy as jnp
@@ -129,10 +138,9 @@ def test_trigger_breaks_the_mirror_symmetry():
     from mlsph_jax.cases.cylinder import trigger_velocity
     from mlsph_jax.state import Kind
 
-    pb0, s0 = _run()
+    pb0, s0, pb1, s1 = _runs("case.perturbation=0.3")
     assert max(abs(v) for v in s0["timeseries"]["cl"]) < 1e-12, s0["timeseries"]["cl"]
-    pb1, s1 = _run("case.perturbation=0.3")
-    assert min(abs(v) for v in s1["timeseries"]["cl"]) > 1e-3, s1["timeseries"]["cl"]
+    assert max(abs(v) for v in s1["timeseries"]["cl"]) > 1e-2, s1["timeseries"]["cl"]   # (it oscillates)
     assert all(math.isfinite(v) for v in s1["timeseries"]["cd"])
     # the initial states differ only in the fluid's momentum and energy
     q0, q1 = np.asarray(pb0.particles.q), np.asarray(pb1.particles.q)
@@ -141,7 +149,7 @@ def test_trigger_breaks_the_mirror_symmetry():
     # divergence-free (exact derivatives by autodiff) with zero net vorticity (spectrally accurate
     # trapezoidal sum over a box of +- 5 cores about the vortex), peak swirl speed 0.3 U_inf
     cfg = config_mod.load(CONFIG_DIR / "cylinder.toml", [*SMALL, "case.perturbation=0.3"])
-    g = np.linspace(-1.0, 4.0, 201)
+    g = np.linspace(-1.0, 4.0, 101)
     X, Y = np.meshgrid(g, g - 1.5, indexing="ij")
     pts = jnp.asarray(np.c_[X.ravel(), Y.ravel()])
     J = jax.vmap(jax.jacfwd(lambda x: trigger_velocity(cfg, x[None], jnp)[0]))(pts)
@@ -170,3 +178,33 @@ def test_bad_trigger_and_statistics_input_names_the_key(overrides, words):
         config_mod.load(CONFIG_DIR / "cylinder.toml", list(overrides))
     for w in words:
         assert w in str(e.value), (w, str(e.value))
+
+
+# --- the built-in unsteady config (slow) ---------------------------------------------------------
+
+#: Issue 17's Re = 100 targets (thesis Table 4.2, present method 1.3587, +-0.3325, 0.1653):
+#: metric -> (value, relative tolerance).
+RE100_TARGETS = {"cd_mean": (1.35, 0.03), "cl_amplitude": (0.33, 0.10), "st": (0.165, 0.03)}
+
+
+@pytest.mark.slow
+def test_builtin_re100_config_sheds_and_meets_table_4_2():
+    """configs/cylinder_re100.toml as shipped (48 on the body, 1,920 particles, far field at 40 D,
+    Mach 0.2, cubic reconstruction, trigger on, t_end = 150, statistics over the whole lift periods
+    after t = 100): the wake sheds (St, mean C_D and the C_L amplitude over >= 5 whole periods, the
+    amplitude settled to 5 % over them); against the Table 4.2 targets (mean C_D 1.35 +- 3 %, C_L
+    amplitude 0.33 +- 10 %, St 0.165 +- 3 %) a missed target is reported as an expected failure
+    with the measured values.  Measured (docs/validation.md "Vortex shedding"; 21,011 steps, 28.6 min
+    at load 3.4-5.8): 6 periods, drift 2.5 %, St 0.1407, mean C_D 1.2455, C_L amplitude 0.1960: all
+    three missed (the wake at n_theta = 48 behaves like Re ~ 65)."""
+    from mlsph_jax.simulation import run_problem
+
+    cfg = config_mod.load(CONFIG_DIR / "cylinder_re100.toml", ["output.plots=false", "output.progress=false"])
+    s = run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True).summary
+    stats = s["series_statistics"]
+    assert "metrics" in stats, stats
+    m = stats["metrics"]
+    assert m["n_periods"] >= 5 and abs(stats["cl_amplitude_drift"]) < 0.05, stats
+    missed = {k: (m[k], v) for k, v in RE100_TARGETS.items() if abs(m[k] - v[0]) > v[1] * v[0]}
+    if missed:
+        pytest.xfail(f"Table 4.2 targets missed at n_theta = 48 (issue 17 open): {missed}")
