@@ -178,7 +178,9 @@ class WithFarField:
     far: CharacteristicFarField
 
     def apply(self, p: Particles, params) -> Particles:
-        return self.far.apply(self.walls.apply(p, params), params)
+        """The far field first, then the walls (mirror ghosts of far-field particles copy their
+        new state)."""
+        return self.walls.apply(self.far.apply(p, params), params)
 
     def fix(self, p: Particles, params) -> WithFarField:
         """The walls' searches done once for fixed particles (:func:`mlsph_jax.integrate.fixed_boundary`)."""
