@@ -153,15 +153,16 @@ class CharacteristicFarField:
         eos = get_eos(self.eos)
         inner = to_primitive(p.q[self.source] / p.vol[self.source][:, None], eos, params)
         ref_s, ref_f = (self._reference(p.x[idx], params, eos) for idx in (self.source, self.frozen))
-        rho, vel, pres = self.state((inner.rho, inner.vel, inner.p, inner.c), ref_s, self.normal, self.eos, params)
+        normal = self.normal.astype(p.q.dtype)   # float32 runs: the set-up normals are float64
+        rho, vel, pres = self.state((inner.rho, inner.vel, inner.p, inner.c), ref_s, normal, self.eos, params)
         rho, vel = rho + ref_f[0] - ref_s[0], vel + ref_f[1] - ref_s[1]
         pres = None if pres is None else pres + ref_f[2] - ref_s[2]
         U = to_conservative(rho, vel, pres, eos, params)
-        return p.replace(q=p.q.at[self.frozen].set(p.vol[self.frozen][:, None] * U))
+        return p.replace(q=p.q.at[self.frozen].set((p.vol[self.frozen][:, None] * U).astype(p.q.dtype)))
 
     def _reference(self, x, params, eos):
         """``(rho, vel, p, c)`` of the free stream at ``x``."""
-        rho, vel, pres = self.reference(x, params)
+        rho, vel, pres = (None if a is None else jnp.asarray(a, x.dtype) for a in self.reference(x, params))
         if not eos.has_energy:
             pres = eos.pressure(rho, jnp.zeros_like(rho), params)
         return rho, vel, pres, eos.sound_speed(rho, pres, params)

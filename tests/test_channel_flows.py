@@ -154,6 +154,9 @@ def test_configs_hold_the_thesis_parameters():
                                       "driven by its inflow alone"]),
     (POISEUILLE, ["case.inlet=1.0", "physics.body_force=[]", "case.walls=boundary_integral"],
      ["invalid case.walls=\"boundary_integral\"", "\"mirror_ghosts\""]),
+    (POISEUILLE, ["case.inlet=1.0", "physics.body_force=[]", "scheme.frame=lagrangian"],
+     ["invalid scheme.frame=\"lagrangian\" with case.inlet=1.0", "\"eulerian\""]),
+    (POISEUILLE, ["case.inlet=-1.0", "physics.body_force=[]"], ["case.inlet", "-1.0"]),
 ])
 def test_bad_input_names_the_key(path, overrides, fragments):
     msg = _err(path, overrides)
@@ -240,7 +243,11 @@ def test_open_channel_develops_poiseuille_flow():
     raises the pressure drop instead of slowing the flow."""
     _, pb, r = _run(POISEUILLE, [*OPEN, "case.ny=10", "case.nx=12", "time.t_end=5", "output.snapshots=5"])
     kind = np.asarray(pb.particles.kind)
-    assert np.sum(kind == int(Kind.FROZEN)) == 2 * 4 * 10 and not pb.domain.periodic[0]
+    columns = math.ceil(pb.scheme.support * pb.scheme.beta) + 1     # per end
+    assert np.sum(kind == int(Kind.FROZEN)) == 2 * columns * 10 and not pb.domain.periodic[0]
+    with pytest.raises(InputError, match="case.inlet"):
+        from mlsph_jax.spatial import check_spatial
+        check_spatial(pb.scheme, pb.boundary)
     m, ts = r.summary["metrics"], r.summary["timeseries"]
     assert ts["linf_u_error"][0] > 0.9
     assert m["linf_u_error"] < 0.03 and m["max_abs_v"] < 0.01 and m["pressure_gradient_error"] < 0.35, m

@@ -230,6 +230,35 @@ def test_cylinder_run_through_the_far_field():
     q_end, q0 = np.asarray(out.particles.q), np.asarray(pb.particles.q)
     assert np.all(np.isfinite(q_end)) and out.summary["metrics"]["cd"] > 0
     assert np.max(np.abs(q_end[frozen] - q0[frozen])) > 1e-6 * np.max(np.abs(q0))
+    # applied after the step: the far-field rings hold the characteristic state of the final interior
+    again = np.asarray(pb.boundary.apply(out.particles, pb.params).q)
+    assert np.max(np.abs(again - q_end)) <= 1e-13 * np.max(np.abs(q0))
+
+
+def test_float32_run_through_the_far_field():
+    """``run.precision = "float32"``: the far field writes float32 states (no float64 scatter)."""
+    import warnings
+
+    from mlsph_jax.simulation import Simulation
+
+    _, pb = _cylinder("case.mach=0.2", "time.t_end=0.02")
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", message=".*scatter inputs have incompatible types.*")
+        out = Simulation(pb, cfl=0.6, precision="float32").run(None, snapshots=1, progress=False, plots=False)
+    assert out.particles.q.dtype == jnp.float32 and np.all(np.isfinite(np.asarray(out.particles.q)))
+
+
+@pytest.mark.slow
+def test_drag_gradient_through_the_characteristic_far_field():
+    """d C_D / d (mu, gamma) through a short run with the characteristic far field against
+    central differences (measured 3.8e-11 and 1.7e-8 relative, 92 s)."""
+    from mlsph_jax.sensitivity import sensitivity
+
+    _, pb = _cylinder("case.mach=0.2")
+    res = sensitivity(pb, ["physics.mu", "eos.gamma"], "cd", check_fd=True, n_steps=25, t_end=0.1)
+    for k in ("physics.mu", "eos.gamma"):
+        g = res["gradients"][k]
+        assert g["gradient"] != 0.0 and max(np.ravel(g["rel_disagreement"])) < 1e-6, (k, g)
 
 
 def test_bad_input_names_the_key():

@@ -213,8 +213,9 @@ CYLINDER_KEYS: dict[str, Key] = {
     "far_field": Key(str, "frozen", choices=FAR_FIELDS.names,
                      doc="state of the far-field rings beyond r_far: \"frozen\" keeps the free stream (SPEC "
                          "§5.8); \"characteristic\" sets the Riemann-invariant state of the nearest fluid "
-                         "particle and the free stream each stage (non-reflecting for outgoing waves and the "
-                         "wake; mlsph_jax/far_field.py)"),
+                         "particle and the free stream each stage (non-reflecting for outgoing acoustic waves, "
+                         "but at low Mach the pressure level floats with the wake); \"inflow_outflow\" is a "
+                         "velocity inlet and pressure outlet (docs/validation.md, far-field options)"),
     "steady_tol": steady_tol_key(1e-3),
 }
 
