@@ -82,6 +82,7 @@ def check_spatial(scheme, boundary, *, local_time_stepping: bool = False):
     """Refuse (``InputError`` naming the key and value) what the spatial decomposition does not
     support: moving frames, MOOD, walls other than mirror ghosts, local time stepping."""
     from .boundaries import MirrorWalls
+    from .far_field import CharacteristicFarField, WithFarField
 
     ok = 'allowed with run.decomposition="spatial": '
     if scheme.moving:
@@ -92,6 +93,11 @@ def check_spatial(scheme, boundary, *, local_time_stepping: bool = False):
         raise InputError(f"invalid scheme.limiter={scheme.limiter!r} with run.decomposition=\"spatial\": MOOD is "
                          f"not built for the spatial decomposition; {ok}scheme.limiter=\"none\" (or "
                          "run.decomposition=\"index\")")
+    if isinstance(boundary, (WithFarField, CharacteristicFarField)):
+        raise InputError("invalid far field (case.far_field=\"characteristic\"/\"inflow_outflow\", or an open "
+                         "channel's case.inlet) with run.decomposition=\"spatial\": each far-field particle reads a "
+                         f"fluid particle that may sit on another shard; {ok}case.far_field=\"frozen\" or "
+                         "case.inlet=0 (or run.decomposition=\"index\")")
     if boundary is not None and not isinstance(boundary, MirrorWalls):
         what = ("boundary-integral walls (case.walls=\"boundary_integral\", or a case whose body is one, "
                 "such as the cylinder)" if getattr(boundary, "wall_terms", None) is not None

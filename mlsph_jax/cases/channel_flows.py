@@ -19,6 +19,17 @@ the superposition (:func:`mlsph_jax.reference.viscous.channel_startup`).  The fl
 parallel shear flow, div u = 0, so the weakly compressible solution has uniform density and
 the incompressible solution is its exact reference.
 
+Open channel (``case.inlet`` = U != 0; issue 17 item 3).  Instead of periodicity along x, an
+inlet at x = 0 and an outlet at x = nx dx: ``ceil(kappa beta) + 1`` columns of FROZEN particles
+beyond each end hold the ``inflow_outflow`` far field of :mod:`mlsph_jax.far_field` (set every
+stage): at the inlet the parabolic profile u = 4 U y (L - y) / L^2 with the interior's density,
+at the outlet the interior's velocity with rho0 (pressure p0).  The fluid starts at rest and
+the inflow drives it; no body force.  The steady state is plane Poiseuille flow with peak U,
+i.e. the body-force solution with the equivalent f_x = 8 nu U / L^2, now carried by the pressure
+gradient dp/dx = -rho0 f_x; the errors below compare with that steady profile at every time, and
+``pressure_gradient_error`` = |slope of p(x) over the fluid - (-rho0 f_x)| / (rho0 f_x) (least
+squares over the particles of the middle half of the channel).
+
 Diagnostics (every output time, ``timeseries`` of the summary) and metrics (final time), over
 the fluid particles, with u_max = :func:`~mlsph_jax.reference.viscous.channel_u_max` (the
 steady peak speed: u_plate, or f_x L^2 / (8 nu)):
@@ -45,6 +56,7 @@ from ..boundaries import Wall
 from ..config import effective_beta
 from ..eos import get_eos, to_conservative, to_primitive
 from ..errors import ConfigError
+from ..far_field import FAR_FIELDS, with_far_field
 from ..kernels import get_kernel
 from ..plotting import colormap, subplots
 from ..reference.viscous import channel_startup, channel_steady, channel_u_max
@@ -79,10 +91,24 @@ def check_channel(cfg: dict) -> None:
     if bf and bf[1] != 0.0:
         problems.append(f"invalid physics.body_force={show(bf)}: case {name} takes a force along "
                         "the plates only; allowed: [] or [f_x, 0.0]")
-    if c["u_plate"] == 0.0 and fx == 0.0:
+    if c["inlet"] != 0.0:
+        if fx != 0.0 or c["u_plate"] != 0.0:
+            problems.append(f"invalid case.inlet={show(c['inlet'])} with physics.body_force={show(bf)} and "
+                            f"case.u_plate={show(c['u_plate'])}: the open channel is driven by its inflow alone; "
+                            "allowed: physics.body_force = [] (or [0.0, 0.0]) and case.u_plate = 0 with an inlet")
+        if cfg["scheme"]["frame"] != "eulerian":
+            problems.append(f"invalid scheme.frame={show(cfg['scheme']['frame'])} with case.inlet={show(c['inlet'])}: "
+                            "the inlet and outlet columns are paired with fixed fluid particles at set-up; "
+                            "allowed: \"eulerian\" (or case.inlet = 0, periodic)")
+        if c["walls"] != "mirror_ghosts":
+            problems.append(f"invalid case.walls={show(c['walls'])} with case.inlet={show(c['inlet'])}: the open "
+                            "channel's far-field columns are built for mirror-ghost plates; allowed: "
+                            "\"mirror_ghosts\" (or case.inlet = 0, periodic)")
+    elif c["u_plate"] == 0.0 and fx == 0.0:
         problems.append(f"invalid case.u_plate={show(c['u_plate'])} with physics.body_force="
                         f"{show(bf)}: nothing drives the flow; allowed: u_plate != 0 (Couette) "
-                        "or physics.body_force = [f_x, 0.0] with f_x != 0 (Poiseuille)")
+                        "or physics.body_force = [f_x, 0.0] with f_x != 0 (Poiseuille), or case.inlet != 0 "
+                        "(an open channel)")
     problems += walls_problems(cfg)
     reach = 2.0 * get_kernel(cfg["scheme"]["kernel"]).support * effective_beta(cfg["scheme"])
     if not c["nx"] > reach:
@@ -106,6 +132,10 @@ def _channel_keys(u_plate: float) -> dict[str, Key]:
                        doc="velocity of the top plate (y = L) along x, switched on at t = 0 "
                            "(the bottom plate is fixed); thesis Couette: 1"),
         "walls": walls_key("both plates"),
+        "inlet": Key(float, 0.0, minimum=0.0, unit="m/s",
+                     doc="0: periodic along the plates; U != 0: an open channel, parabolic inflow of peak U at "
+                         "x = 0 and a pressure outlet at x = nx dx (case.far_field \"inflow_outflow\" columns; "
+                         "no body force); the steady state is Poiseuille flow with peak U"),
     }
 
 
@@ -114,12 +144,17 @@ def drives(cfg: Mapping) -> dict[str, float]:
     parameters; nu = physics.mu / eos.rho0)."""
     c, phys = cfg["case"], cfg["physics"]
     bf = phys["body_force"]
-    return {"u_plate": float(c["u_plate"]), "f_x": float(bf[0]) if bf else 0.0,
-            "nu": float(phys["mu"]) / float(cfg["eos"]["rho0"]), "gap": float(c["gap"])}
+    nu = float(phys["mu"]) / float(cfg["eos"]["rho0"])
+    gap = float(c["gap"])
+    if c["inlet"] != 0.0:   # the open channel: the pressure gradient of the inflow's steady state
+        return {"u_plate": 0.0, "f_x": 8.0 * nu * float(c["inlet"]) / gap ** 2, "nu": nu, "gap": gap}
+    return {"u_plate": float(c["u_plate"]), "f_x": float(bf[0]) if bf else 0.0, "nu": nu, "gap": gap}
 
 
 def exact(cfg: Mapping, y, t: float) -> np.ndarray:
-    """Exact u(y, t) of a resolved channel config."""
+    """Exact u(y, t) of a resolved channel config (the open channel: its steady profile)."""
+    if cfg["case"]["inlet"] != 0.0:
+        return channel_steady(y, **drives(cfg))
     return channel_startup(y, t, **drives(cfg))
 
 
@@ -138,15 +173,30 @@ def _build(cfg: Mapping) -> Problem:
     eos = get_eos(scheme.eos)
     gap, ny, nx = c["gap"], c["ny"], c["nx"]
     dx = gap / ny
-    x = lattice(nx, ny, dx)
+    band = scheme.support * scheme.beta * dx   # support radius: every fluid stencil is complete
+    open_ = c["inlet"] != 0.0
+    n_end = int(np.ceil(scheme.support * scheme.beta)) + 1 if open_ else 0   # frozen columns per end
+    x = lattice(nx + 2 * n_end, ny, dx) - np.asarray([n_end * dx, 0.0])
+    kind = np.where((x[:, 0] < 0.0) | (x[:, 0] > nx * dx), int(Kind.FROZEN), int(Kind.FLUID))
     n = len(x)
     U = to_conservative(jnp.full(n, cfg["eos"]["rho0"]), jnp.zeros((n, 2)), None, eos, params)
-    pf = make_particles(x, np.full(n, dx * dx), U, ppd=np.full(n, scheme.reconstruction_degree))
-    band = scheme.support * scheme.beta * dx   # support radius: every fluid stencil is complete
+    pf = make_particles(x, np.full(n, dx * dx), U, kind=kind, ppd=np.full(n, scheme.reconstruction_degree))
     plates = [Wall(1, 0.0, 1), Wall(1, gap, -1)]
-    domain = Domain((0.0, -band - dx), (nx * dx, gap + band + dx), (True, False))
+    pad = (n_end + 2) * dx if open_ else 0.0
+    domain = Domain((-pad, -band - dx), (nx * dx + pad, gap + band + dx), (not open_, False))
     particles, walls = setup_walls(cfg, pf, plates, band, params, scheme, domain)
     d = drives(cfg)
+    if open_:
+        rho0, u_in = float(cfg["eos"]["rho0"]), float(c["inlet"])
+
+        def stream(xf, P):
+            """The inflow profile and the outlet's rest density (far_field reference)."""
+            y = xf[:, 1]
+            u = 4.0 * u_in * y * (gap - y) / gap ** 2
+            return jnp.full(len(xf), rho0), jnp.stack([u, jnp.zeros_like(u)], axis=1), None
+
+        far = FAR_FIELDS.get("inflow_outflow", "case.inlet").setup(particles, scheme.eos, stream)
+        walls = with_far_field(walls, far)
     u_max = channel_u_max(**d)
 
     def errors(p: Particles, t: float, P) -> dict[str, float]:
@@ -155,13 +205,26 @@ def _build(cfg: Mapping) -> Problem:
         return {"linf_u_error": float(np.abs(e).max() / u_max),
                 "l2_u_error": float(np.sqrt(np.mean(e * e)) / u_max),
                 "max_abs_v": float(np.abs(v).max() / u_max),
-                "steady_linf_u_error": float(np.abs(u - channel_steady(y, **d)).max() / u_max)}
+                "steady_linf_u_error": float(np.abs(u - channel_steady(y, **d)).max() / u_max),
+                **({"pressure_gradient_error": _pressure_gradient_error(p, P, scheme.eos, nx * dx, d)} if open_
+                   else {})}
 
     def plot(out: Path, p: Particles, t: float, P) -> None:
         plot_profiles(out, cfg, title=_title(cfg))
 
     return Problem(c["name"], particles, params, scheme, domain, cfg["time"]["t_end"], errors, plot,
                    config=cfg, description=_title(cfg), boundary=walls, diagnostics=errors)
+
+
+def _pressure_gradient_error(p: Particles, P, eos_kind: str, length: float, d: Mapping) -> float:
+    """|dp/dx - (-rho0 f_x)| / (rho0 f_x), dp/dx the least-squares slope of p(x) over the fluid
+    particles of the middle half of the open channel (away from the inlet and outlet rows)."""
+    pr = to_primitive(p.U, get_eos(eos_kind), P)
+    x = np.asarray(p.x[:, 0])
+    sel = (np.asarray(p.kind) == int(Kind.FLUID)) & (x > 0.25 * length) & (x < 0.75 * length)
+    slope = np.polyfit(x[sel], np.asarray(pr.p)[sel], 1)[0]
+    want = float(P["eos.rho0"]) * d["f_x"]
+    return float(abs(slope + want) / abs(want))
 
 
 def build_couette(cfg: Mapping) -> Problem:

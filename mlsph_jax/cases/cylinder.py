@@ -38,6 +38,9 @@ updates a frozen particle (its state is the free stream bit for bit at every sta
 "reset to the free stream each stage" of SPEC §5.8), while it acts as a neighbour of the fluid.
 Their number is the smallest that covers the support radius kappa beta sqrt(V) of the outermost
 fluid ring, plus one ring (as for the blast's far field), so every fluid stencil is complete.
+``far_field`` chooses their state (:mod:`mlsph_jax.far_field`): ``frozen`` (the above, default),
+``characteristic`` (Riemann invariants, set every stage) or ``inflow_outflow`` (velocity inlet,
+pressure outlet); measured against each other in docs/validation.md ("Far-field options").
 
 Fluid.  Ideal gas (SPEC V9 [REC]: gamma = 1.4), rho_inf = U_inf = 1, free-stream Mach number
 ``mach`` (c_inf = U_inf / M, p_inf = rho_inf c_inf^2 / gamma), mu = rho_inf U_inf D / ``re``
@@ -108,6 +111,7 @@ from ..boundaries import BOUNDARIES
 from ..config import effective_beta
 from ..eos import get_eos, to_conservative, to_primitive
 from ..errors import ConfigError, InputError
+from ..far_field import FAR_FIELDS, with_far_field
 from ..geometry import Circle, StreamEllipse
 from ..kernels import get_kernel
 from ..periodic import whole_period_statistics
@@ -264,6 +268,12 @@ CYLINDER_KEYS: dict[str, Key] = {
                      doc="unsteady statistics (Strouhal number, mean C_D, C_L amplitude and rms; summary.json "
                          "series_statistics) use the whole lift periods recorded after this time (in D / U_inf); "
                          "the output interval t_end / output.snapshots must resolve a period (>= 8 samples)"),
+    "far_field": Key(str, "frozen", choices=FAR_FIELDS.names,
+                     doc="state of the far-field rings beyond r_far: \"frozen\" keeps the free stream (SPEC "
+                         "§5.8); \"characteristic\" sets the Riemann-invariant state of the nearest fluid "
+                         "particle and the free stream each stage (non-reflecting for outgoing acoustic waves, "
+                         "but at low Mach the pressure level floats with the wake); \"inflow_outflow\" is a "
+                         "velocity inlet and pressure outlet (docs/validation.md, far-field options)"),
     "steady_tol": steady_tol_key(1e-3),
 }
 
@@ -366,6 +376,9 @@ def build(cfg: Mapping) -> Problem:
     particles, walls = BOUNDARIES.get("boundary_integral").setup(pf, [], band, params, scheme.eos, scheme=scheme,
                                                                  domain=domain, curves=(body,))
     _check_far_field_apart(walls, particles)
+    far = FAR_FIELDS.get(c["far_field"], "case.far_field").setup(
+        particles, scheme.eos, lambda xf, P: free_stream(cfg, xf, P, xp=jnp))
+    boundary = with_far_field(walls, far)
 
     def particles_at(P) -> Particles:
         """The initial particles for the parameters ``P`` (jnp, differentiable): the layout
@@ -412,7 +425,7 @@ def build(cfg: Mapping) -> Problem:
         return shedding_statistics(series, c["transient"], D=2.0 * R)
 
     return Problem("cylinder", particles, params, scheme, domain, cfg["time"]["t_end"], metrics, plot,
-                   config=cfg, description=_title(cfg, particles.n), boundary=walls, diagnostics=diagnostics,
+                   config=cfg, description=_title(cfg, particles.n), boundary=boundary, diagnostics=diagnostics,
                    steady_tol=c["steady_tol"], differentiable_metrics=coefficients, particles_at=particles_at,
                    series_statistics=series_statistics)
 
