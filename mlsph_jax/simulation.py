@@ -67,7 +67,11 @@ class Problem:
     :mod:`mlsph_jax.sensitivity`.  ``particles_at(params) -> Particles``: the initial particles
     as a jnp function of the parameters, for a layout that follows them (the cylinder's
     body-fitted layout of an elliptic body, decision 65); ``None``: ``particles`` for any
-    parameters."""
+    parameters.  ``series_statistics(series) -> dict``: statistics of the recorded time series
+    (``series`` maps each diagnostic and ``t`` to its array over the output times), computed once
+    at the end of a run; written to ``summary.json`` under ``series_statistics``, the finite numbers
+    of its ``metrics`` entry also among the run's metrics (the cylinder's Strouhal number and
+    whole-period means, :mod:`mlsph_jax.periodic`; none when the run is too short for them)."""
 
     case: str
     particles: Particles
@@ -85,6 +89,7 @@ class Problem:
     differentiable_diagnostics: Callable[[Particles, float, Params], Mapping] | None = None
     differentiable_metrics: Callable[[Particles, float, Params], Mapping] | None = None
     particles_at: Callable[[Params], Particles] | None = None
+    series_statistics: Callable[[Mapping[str, np.ndarray]], dict] | None = None
 
 
 @dataclasses.dataclass
@@ -447,6 +452,11 @@ class Simulation:
             summary["degree_fallback"] = fallback.summary(carry.fallback, pb.scheme, thr)
         if series:
             summary["timeseries"] = {k: [row[k] for row in series] for k in series[0]}
+            if pb.series_statistics is not None and failure is None:
+                stats = pb.series_statistics({k: np.asarray(v, float) for k, v in summary["timeseries"].items()})
+                summary["series_statistics"] = stats
+                summary["metrics"].update({k: float(v) for k, v in stats.get("metrics", {}).items()
+                                           if math.isfinite(v)})
             if out is not None:
                 io.write_timeseries(out, series)
         if steady is not None:

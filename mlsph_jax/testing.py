@@ -22,6 +22,7 @@ REDUCED_OVERRIDES: dict[str, tuple[str, ...]] = {
     "blast_2d": ("case.dx=8e-3", "time.t_end=5e-6"),
     "couette": ("case.ny=10", "case.nx=8", "time.t_end=0.2", "output.snapshots=2"),
     "cylinder": ("case.n_theta=32", "case.r_far=3.0", "time.t_end=0.2", "output.snapshots=2"),
+    "cylinder_re100": ("case.n_theta=32", "case.r_far=4.0", "time.t_end=0.2", "output.snapshots=2"),
     "lid_driven_cavity": ("case.n=12", "time.t_end=0.3", "output.snapshots=3"),
     "poiseuille": ("case.ny=10", "case.nx=8", "time.t_end=0.2", "output.snapshots=2"),
     "riemann_r1_tait": ("case.n=50", "time.t_end=5e-6"),

@@ -54,6 +54,33 @@ Steady state.  The run stops once the velocity field changes by less than ``stea
 time relative to its maximum between two output times (the cavity's residual,
 :class:`~mlsph_jax.simulation.Problem` ``steady_tol``), or at ``time.t_end``.
 
+Vortex shedding (Re >~ 47; thesis §4.5.3, Table 4.2; configs ``cylinder_re100``). The layout (rings
+at the body's quadrature angles, symmetric about y = 0), the impulsive start and the scheme are
+mirror-symmetric to round-off, so without a trigger the wake stays symmetric for as long as
+round-off needs to grow into the shedding mode (measured: |C_L| < 1.5e-13 to t = 84 at Re = 100).
+Numerical studies of the unsteady cylinder break the symmetry on purpose, either by an asymmetric
+start (an initial perturbation of the flow field) or by a short rotation or displacement of the
+body (Braza, Chassaing & Ha Minh 1986, J. Fluid Mech. 165, rotated the cylinder for a short time);
+a limit cycle that is reached does not depend on the trigger. Here the trigger is an initial
+perturbation, ``case.perturbation`` > 0 (default 0: off): a shielded Gaussian vortex (stream
+function psi = A exp(-|x - x_v|^2 / sigma^2), divergence-free, zero circulation, its velocity
+negligible beyond 4 sigma) centred on the wake axis at x_v = (``perturbation_x`` D, 0), core sigma
+= ``perturbation_core`` D, peak swirl speed ``perturbation`` U_inf, added to the free stream of the
+fluid particles at t = 0 (:func:`trigger_velocity`). It is a plain function of the configuration
+(in :func:`initial_state`, which ``problem.particles_at`` also uses, so it is as differentiable as
+the rest of the initial state), needs no time-dependent boundary data, and is carried out of the
+domain by the stream: after the transient nothing of it remains (statistics are taken after
+``case.transient``). A rotation of the body over a time window would need the time inside the
+right-hand side, which the integrator does not pass. Statistics of the shedding
+(:func:`shedding_statistics`, :mod:`mlsph_jax.periodic`; summary.json ``series_statistics`` and
+metrics ``st``, ``st_spectral``, ``cd_mean``, ``cl_mean``, ``cl_amplitude``, ``cl_rms``,
+``n_periods``): the Strouhal number f D / U_inf from the upward zero crossings of C_L, means,
+amplitude and rms over the whole lift periods after ``case.transient``; a note instead of numbers
+when the run is too short, does not shed or the output interval does not resolve the period. C_L
+and C_D are recorded at the output times (``output.snapshots`` of them), so the output interval
+t_end / snapshots must resolve the period (~6 D / U_inf at Re = 100: >= 8 samples per period are
+required, ~24 used).
+
 Diagnostics (every output time, ``timeseries.csv``) and metrics (final state), forces from the
 body's quadrature points (:meth:`~mlsph_jax.wall_integral.BoundaryIntegralWalls.coefficients`):
 
@@ -87,6 +114,7 @@ from ..errors import ConfigError, InputError
 from ..far_field import FAR_FIELDS, with_far_field
 from ..geometry import Circle, StreamEllipse
 from ..kernels import get_kernel
+from ..periodic import whole_period_statistics
 from ..plotting import subplots
 from ..reference import cylinder as ref
 from ..schema import Key, join_problems, show
@@ -102,6 +130,9 @@ U_INF = 1.0
 #: Name of the body's curve (``geometry.body.*`` parameters).
 BODY = "body"
 _NAMES = ("case.radius", "case.n_theta", "case.r_far")
+#: The trigger vortex must fit in the fluid out to this many core radii (its velocity there is
+#: ~1e-6 of the peak).
+TRIGGER_REACH = 4.0
 #: ``case.body`` choices: the curve of each.
 BODIES = ("circle", "ellipse")
 
@@ -173,6 +204,18 @@ def check_cylinder(cfg: dict) -> None:
         problems.append(f"invalid case.aspect={show(c['aspect'])} / case.alpha={show(c['alpha'])} with "
                         "case.body=\"circle\": a circle has aspect 1 and no angle of attack; allowed: "
                         "case.body = \"ellipse\" (or aspect 1 and alpha 0)")
+    if c["perturbation"] > 0.0:
+        D, core, xv = 2.0 * c["radius"], c["perturbation_core"], c["perturbation_x"]
+        # the body's largest half-extent in units of D (an ellipse: its semi-major axis)
+        half = 0.5 * math.sqrt(max(c["aspect"], 1.0 / c["aspect"])) if c["body"] == "ellipse" else 0.5
+        if xv - core <= half:
+            problems.append(f"invalid case.perturbation_x={show(xv)} with case.perturbation_core={show(core)}: the "
+                            f"trigger vortex's core reaches into the body (x / D <= {half:.4g}); allowed: "
+                            f"case.perturbation_x - case.perturbation_core > {half:.4g}")
+        elif (xv + TRIGGER_REACH * core) * D >= c["r_far"]:
+            problems.append(f"invalid case.perturbation_x={show(xv)} with case.perturbation_core={show(core)} and "
+                            f"case.r_far={show(c['r_far'])}: the trigger vortex reaches the far field; allowed: "
+                            f"(case.perturbation_x + {TRIGGER_REACH:g} case.perturbation_core) D < case.r_far")
     bf = phys["body_force"]
     if bf and any(f != 0.0 for f in bf):
         p_inf = RHO_INF * (U_INF / c["mach"]) ** 2 / cfg["eos"]["gamma"]
@@ -210,6 +253,21 @@ CYLINDER_KEYS: dict[str, Key] = {
     "alpha": Key(float, 0.0, minimum=-90.0, maximum=90.0, unit="deg",
                  doc="ellipse only: angle of attack, nose up, in degrees (realised by turning the free stream "
                      "to (cos alpha, sin alpha); parameter geometry.body.alpha in radians)"),
+    "perturbation": Key(float, 0.0, minimum=0.0, maximum=0.5,
+                        doc="symmetry-breaking trigger for vortex shedding: peak swirl speed / U_inf of a "
+                            "divergence-free, shielded (zero-circulation) Gaussian vortex added to the initial "
+                            "state, centred at (case.perturbation_x, 0) in units of D behind the body's centre "
+                            "(0: off, the flow stays mirror-symmetric to round-off; docs/validation.md)"),
+    "perturbation_x": Key(float, 1.5, minimum=0.0, exclusive_minimum=True,
+                          doc="x / D of the trigger vortex's centre on the wake axis (its core, of radius "
+                              "case.perturbation_core D, must lie in the fluid)"),
+    "perturbation_core": Key(float, 0.5, minimum=0.0, exclusive_minimum=True,
+                             doc="core radius sigma / D of the trigger vortex (stream function "
+                                 "psi ~ exp(-r^2 / sigma^2))"),
+    "transient": Key(float, 50.0, minimum=0.0, unit="s",
+                     doc="unsteady statistics (Strouhal number, mean C_D, C_L amplitude and rms; summary.json "
+                         "series_statistics) use the whole lift periods recorded after this time (in D / U_inf); "
+                         "the output interval t_end / output.snapshots must resolve a period (>= 8 samples)"),
     "far_field": Key(str, "frozen", choices=FAR_FIELDS.names,
                      doc="state of the far-field rings beyond r_far: \"frozen\" keeps the free stream (SPEC "
                          "§5.8); \"characteristic\" sets the Riemann-invariant state of the nearest fluid "
@@ -235,6 +293,32 @@ def free_stream(cfg: Mapping, x: np.ndarray, params: Params, xp=np):
     p = p_inf * xp.exp(RHO_INF * (x @ f) / p_inf)
     vel = xp.tile(stream_velocity(params, xp), (len(x), 1))
     return RHO_INF * p / p_inf, vel, p
+
+
+def trigger_velocity(cfg: Mapping, x, xp=np):
+    """The symmetry-breaking trigger's velocity at ``x[N, 2]`` (zeros when ``case.perturbation`` is
+    0): the shielded Gaussian vortex of stream function psi = A exp(-|x - x_v|^2 / sigma^2), u =
+    (d psi / dy, -d psi / dx), centred at x_v = (``perturbation_x`` D, 0), sigma =
+    ``perturbation_core`` D, A set so that the peak swirl speed (at |x - x_v| = sigma / sqrt 2)
+    is ``perturbation`` U_inf.  It is divergence-free, its circulation is zero (the velocity decays
+    as exp(-r^2 / sigma^2), nothing reaches the far field) and it turns anticlockwise about x_v: a
+    state that is not its own mirror image in y = 0 (module docstring, "Vortex shedding")."""
+    c = cfg["case"]
+    D = 2.0 * c["radius"]
+    sigma = c["perturbation_core"] * D
+    amp = c["perturbation"] * U_INF * sigma * math.exp(0.5) / math.sqrt(2.0)
+    dx, dy = x[:, 0] - c["perturbation_x"] * D, x[:, 1]
+    psi = amp * xp.exp(-(dx * dx + dy * dy) / sigma ** 2)
+    return xp.stack([-2.0 * dy / sigma ** 2 * psi, 2.0 * dx / sigma ** 2 * psi], axis=-1)
+
+
+def initial_state(cfg: Mapping, x, params: Params, xp=np):
+    """``(rho, vel, p)`` of the initial state: the free stream plus the trigger's velocity
+    (:func:`trigger_velocity`; density and pressure unchanged)."""
+    rho, vel, p = free_stream(cfg, x, params, xp)
+    if cfg["case"]["perturbation"] > 0.0:
+        vel = vel + trigger_velocity(cfg, x, xp)
+    return rho, vel, p
 
 
 def stream_velocity(params: Params, xp=np):
@@ -282,7 +366,8 @@ def build(cfg: Mapping) -> Problem:
     # the body's geometry parameters live in the Params (differentiable, `mlsph sensitivity --wrt`)
     params = params.updated({k: jnp.asarray(v, jnp.float64) for k, v in body.defaults().items()})
     x, vol = (np.asarray(a) for a in body_layout(body, lay.edges, n_theta, params))
-    rho, vel, p = free_stream(cfg, x, params)
+    rho, vel, p = initial_state(cfg, x, params)
+    vel = np.where((kind == int(Kind.FLUID))[:, None], vel, free_stream(cfg, x, params)[1])
     U = to_conservative(jnp.asarray(rho), jnp.asarray(vel), jnp.asarray(p), eos, params)
     pf = make_particles(x, vol, U, kind=kind, ppd=np.full(len(x), scheme.reconstruction_degree))
     half = float(np.max(np.abs(x))) * 1.01 if c["body"] == "ellipse" else float(lay.edges[-1]) * 1.01
@@ -302,7 +387,8 @@ def build(cfg: Mapping) -> Problem:
         changes of a gradient or an optimisation step at fixed aspect (a rotation keeps every
         pair distance) it stays valid (decision 65)."""
         xj, vj = body_layout(body, lay.edges, n_theta, P)
-        r_, v_, p_ = free_stream(cfg, xj, P, xp=jnp)
+        r_, v_, p_ = initial_state(cfg, xj, P, xp=jnp)
+        v_ = jnp.where((particles.kind == int(Kind.FLUID))[:, None], v_, free_stream(cfg, xj, P, xp=jnp)[1])
         Uj = to_conservative(r_, v_, p_, eos, P)
         return particles.replace(x=xj, vol=vj, q=vj[:, None] * Uj)
     p_inf = float(free_stream(cfg, np.zeros((1, 2)), params)[2][0])
@@ -335,9 +421,30 @@ def build(cfg: Mapping) -> Problem:
         plot_field(Path(out) / "velocity_field.png", p, P, scheme, R, title=_title(cfg, p.n, t),
                    outline=None if c["body"] == "circle" else np.asarray(walls.points(P).x))
 
+    def series_statistics(series) -> dict:
+        return shedding_statistics(series, c["transient"], D=2.0 * R)
+
     return Problem("cylinder", particles, params, scheme, domain, cfg["time"]["t_end"], metrics, plot,
                    config=cfg, description=_title(cfg, particles.n), boundary=boundary, diagnostics=diagnostics,
-                   steady_tol=c["steady_tol"], differentiable_metrics=coefficients, particles_at=particles_at)
+                   steady_tol=c["steady_tol"], differentiable_metrics=coefficients, particles_at=particles_at,
+                   series_statistics=series_statistics)
+
+
+def shedding_statistics(series, transient: float, D: float) -> dict:
+    """Vortex-shedding statistics of a run's time series (module docstring, "Vortex shedding";
+    :func:`mlsph_jax.periodic.whole_period_statistics` of C_L after ``transient``): ``metrics``
+    ``st`` = f D / U_inf (zero crossings), ``st_spectral`` (interpolated periodogram peak),
+    ``cd_mean``, ``cl_mean``, ``cl_amplitude``, ``cl_rms`` and ``n_periods`` over the whole lift
+    periods, with their ``window``, ``samples_per_period`` and ``cl_amplitude_drift``; or, with no
+    metrics, a ``note`` saying why there are none (too short, no shedding, under-resolved)."""
+    w = whole_period_statistics(series["t"], series["cl"], transient, {"cd": series["cd"]})
+    if "note" in w:
+        return {"transient": float(transient), "note": w["note"], "n_periods": int(w.get("n_periods", 0))}
+    metrics = {"st": w["frequency"] * D / U_INF, "st_spectral": w["frequency_spectral"] * D / U_INF,
+               "cd_mean": w["means"]["cd"], "cl_mean": w["mean"], "cl_amplitude": w["amplitude"],
+               "cl_rms": w["rms"], "n_periods": float(w["n_periods"])}
+    return {"transient": float(transient), "metrics": metrics, "window": w["window"],
+            "samples_per_period": w["samples_per_period"], "cl_amplitude_drift": w["amplitude_drift"]}
 
 
 def _check_far_field_apart(walls, p: Particles) -> None:

@@ -1,0 +1,210 @@
+"""Vortex shedding behind the cylinder (issue 17 items 5 and 7; thesis §4.5.3, Table 4.2): the
+whole-period statistics of :mod:`mlsph_jax.periodic` on signals with known frequency, amplitude
+and mean, the symmetry-breaking trigger of the ``cylinder`` case, its bad input, and (slow) the
+built-in unsteady config against the Table 4.2 targets."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mlsph_jax import config as config_mod
+from mlsph_jax.cases import build_problem
+from mlsph_jax.errors import ConfigError
+from mlsph_jax.periodic import spectral_frequency, upward_crossings, whole_period_statistics
+from mlsph_jax.testing import CONFIG_DIR
+
+# --- whole-period statistics on synthetic signals ------------------------------------------------
+
+
+def _shedding_like(t, f, amp, mean_cd, phase=0.4, growth=0.0):
+    """A lift sin of frequency f (amplitude amp, with an optional exponential onset) and a drag
+    oscillating at 2 f about mean_cd."""
+    envelope = 1.0 - np.exp(-growth * t) if growth else 1.0
+    cl = amp * envelope * np.sin(2 * np.pi * f * t + phase)
+    cd = mean_cd + 0.1 * amp * np.sin(4 * np.pi * f * t + 2 * phase + 0.3)
+    return cl, cd
+
+
+@pytest.mark.parametrize("samples_per_period", [12, 24])
+def test_statistics_of_a_sinusoid_off_the_fft_bins(samples_per_period):
+    """St = 0.1653 sampled over a window of 150 (not a whole number of periods, so the frequency
+    falls between FFT bins: 24.8 periods, bin width 1/150 = 4 % of f): the zero-crossing frequency
+    is exact to 1e-5 relative, the interpolated spectral peak to 2 % of a bin, the mean drag over
+    whole periods to 1e-6, the parabola-refined amplitude to 1e-3 (the raw sample maximum would be
+    low by up to 1 - cos(pi / n) = 3.4 % at 12 samples per period) and the rms to amp / sqrt 2."""
+    f, amp, cd0 = 0.1653, 0.3325, 1.3587
+    period = 1.0 / f
+    t = np.arange(0.0, 150.0, period / samples_per_period)
+    cl, cd = _shedding_like(t, f, amp, cd0)
+    w = whole_period_statistics(t, cl, 0.0, {"cd": cd})
+    n_bins = f * (t[-1] - t[0])
+    assert abs(n_bins - round(n_bins)) > 0.2        # the frequency is not an FFT bin of the record
+    assert abs(w["frequency"] - f) <= 1e-5 * f
+    assert abs(w["frequency_spectral"] - f) <= 0.02 / (w["window"][1] - w["window"][0])
+    assert abs(w["means"]["cd"] - cd0) <= 1e-6
+    assert abs(w["mean"]) <= 1e-6
+    assert abs(w["amplitude"] - amp) <= 1e-3 * amp
+    assert abs(w["rms"] - amp / math.sqrt(2.0)) <= 1e-4 * amp
+    assert w["n_periods"] == 23 and abs(w["samples_per_period"] - samples_per_period) < 0.1
+    # the raw FFT peak (no interpolation) is off by up to half a bin: the refinement matters
+    spec = np.abs(np.fft.rfft(cl - cl.mean())) ** 2
+    raw = np.argmax(spec[1:]) + 1
+    assert abs(raw / (t[-1] - t[0] + t[1]) - f) > 10 * abs(w["frequency_spectral"] - f)
+
+
+def test_statistics_use_whole_periods_after_the_transient():
+    """A lift with an exponential onset and a nonzero mean (0.05), sampled unevenly: the window
+    starts at the first upward crossing after t0 and ends at the last; the mean lift is the offset
+    (not biased by a partial period) and the amplitude drift reports the onset if t0 is too early."""
+    rng = np.random.default_rng(3)
+    f, amp = 0.2, 0.5
+    t = np.sort(np.concatenate([[0.0, 200.0], rng.uniform(0.0, 200.0, 4000)]))
+    cl = 0.05 + amp * (1.0 - np.exp(-t / 8.0)) * np.sin(2 * np.pi * f * t)
+    late = whole_period_statistics(t, cl, 100.0)
+    assert late["window"][0] >= 100.0 and late["window"][1] <= 200.0
+    assert abs(late["frequency"] - f) <= 1e-4 * f
+    assert abs(late["mean"] - 0.05) <= 1e-4 and abs(late["amplitude"] - amp) <= 1e-3 * amp
+    assert abs(late["amplitude_drift"]) < 1e-3
+    early = whole_period_statistics(t, cl, 0.0)
+    assert early["amplitude_drift"] > 0.2            # still growing (first period ~0.3): the transient is in it
+
+
+def test_statistics_say_why_there_are_none():
+    """No numbers (and no NaN) when the record cannot give them: a symmetric flow's round-off lift,
+    a record shorter than two periods after the transient, nothing after it, too few samples per
+    period; each note says which."""
+    t = np.linspace(0.0, 100.0, 401)
+    cl, _ = _shedding_like(t, 0.165, 0.33, 1.35)
+    cases = {
+        "no oscillation": (t, 1e-13 * np.sin(t), 0.0),
+        "too short: 1 whole period": (t, cl, 90.0),
+        "too short: 0 samples": (t, cl, 150.0),
+        "under-resolved: 6.07 samples per period (period 6.061)": (t[::4], cl[::4], 0.0),
+    }
+    for words, (tt, y, t0) in cases.items():
+        w = whole_period_statistics(tt, y, t0)
+        assert words in w["note"] and "frequency" not in w, (words, w)
+
+
+def test_crossings_and_spectrum_helpers():
+    """upward_crossings of sin(t - 0.3) are at 0.3 + 2 pi k to third order in the step h (the
+    crossing is the inflection point: |error| <= h^3 / 8 for a unit sine, against h^2 / 8 for a
+    generic root), so the period needs no FFT bin; spectral_frequency of a pure tone between bins to
+    2 % of a bin (the Gaussian interpolation's bias on a Hann window; measured 1.2-1.6 %)."""
+    t = np.linspace(0.0, 30.0, 301)
+    h = t[1] - t[0]
+    c = upward_crossings(t, np.sin(t - 0.3))
+    np.testing.assert_allclose(c, 0.3 + 2 * np.pi * np.arange(len(c)), atol=h ** 3 / 8)
+    assert upward_crossings(t, np.sin(t - 0.3) - 0.5).size == 5      # crossings of y = 0.5: 5 as well
+    f = 10.37 / 30.0                        # (far from DC: the image at -f leaks little)
+    assert abs(spectral_frequency(t, np.cos(2 * np.pi * f * t)) - f) <= 0.02 / 30.0
+
+
+# --- the trigger -------------------------------------------------------------------------------------
+
+SMALL = ("case.n_theta=32", "case.r_far=4.0", "case.re=100", "case.mach=0.2", "case.steady_tol=0",
+         "time.local_time_stepping=false", "time.t_end=0.1", "output.snapshots=2", "output.plots=false",
+         "output.progress=false")
+
+
+def _runs(*overrides):
+    """``(problem without trigger, its summary, problem with it, its summary)``: both initial states
+    through one Simulation (same layout, walls and settings: one compilation)."""
+    import dataclasses
+
+    from mlsph_jax.simulation import Simulation
+
+    cfg = config_mod.load(CONFIG_DIR / "cylinder.toml", [*SMALL, *overrides])
+    pb1 = build_problem(cfg)
+    pb0 = build_problem(config_mod.load(CONFIG_DIR / "cylinder.toml", list(SMALL)))
+    sim = Simulation(pb1, cfl=cfg["time"]["cfl"])
+    s1 = sim.run(None, snapshots=2, progress=False, plots=False).summary
+    sim.problem = dataclasses.replace(pb1, particles=pb0.particles)
+    s0 = sim.run(None, snapshots=2, progress=False, plots=False).summary
+    return pb0, s0, pb1, s1
+
+
+def test_trigger_breaks_the_mirror_symmetry():
+    """Without the trigger the coarse Re = 100 start-up is mirror-symmetric to round-off (|C_L| <
+    1e-12 at every output); with it the initial state is not its own mirror image and C_L swings
+    far above round-off (its sign changes: the wake oscillates).  The trigger's field is divergence-free and
+    carries no circulation (a shielded vortex), and it leaves the far field at the free stream."""
+    import jax
+    import jax.numpy as jnp
+
+    from mlsph_jax.cases.cylinder import trigger_velocity
+    from mlsph_jax.state import Kind
+
+    pb0, s0, pb1, s1 = _runs("case.perturbation=0.3")
+    assert max(abs(v) for v in s0["timeseries"]["cl"]) < 1e-12, s0["timeseries"]["cl"]
+    assert max(abs(v) for v in s1["timeseries"]["cl"]) > 1e-2, s1["timeseries"]["cl"]   # (it oscillates)
+    assert all(math.isfinite(v) for v in s1["timeseries"]["cd"])
+    # the initial states differ only in the fluid's momentum and energy
+    q0, q1 = np.asarray(pb0.particles.q), np.asarray(pb1.particles.q)
+    frozen = np.asarray(pb1.particles.kind) != int(Kind.FLUID)
+    assert np.array_equal(q0[frozen], q1[frozen]) and np.array_equal(q0[:, 0], q1[:, 0])
+    # divergence-free (exact derivatives by autodiff) with zero net vorticity (spectrally accurate
+    # trapezoidal sum over a box of +- 5 cores about the vortex), peak swirl speed 0.3 U_inf
+    cfg = config_mod.load(CONFIG_DIR / "cylinder.toml", [*SMALL, "case.perturbation=0.3"])
+    g = np.linspace(-1.0, 4.0, 101)
+    X, Y = np.meshgrid(g, g - 1.5, indexing="ij")
+    pts = jnp.asarray(np.c_[X.ravel(), Y.ravel()])
+    J = jax.vmap(jax.jacfwd(lambda x: trigger_velocity(cfg, x[None], jnp)[0]))(pts)
+    div, curl = J[:, 0, 0] + J[:, 1, 1], J[:, 1, 0] - J[:, 0, 1]
+    h = g[1] - g[0]
+    assert float(jnp.max(jnp.abs(div))) < 1e-12
+    assert abs(float(jnp.sum(curl)) * h * h) < 1e-8 * float(jnp.max(jnp.abs(curl)))
+    speed = np.hypot(*np.asarray(trigger_velocity(cfg, np.asarray(pts))).T)
+    assert abs(speed.max() - 0.3) < 1e-3
+
+
+@pytest.mark.parametrize("overrides, words", [
+    (("case.perturbation=0.7",), ["case.perturbation=0.7", "[0.0, 0.5]"]),
+    (("case.perturbation=-0.1",), ["case.perturbation=-0.1", "[0.0, 0.5]"]),
+    (("case.perturbation=0.2", "case.perturbation_x=0.8"),
+     ["case.perturbation_x=0.8", "case.perturbation_core=0.5", "into the body", "> 0.5"]),
+    (("case.perturbation=0.2", "case.perturbation_x=38"),
+     ["case.perturbation_x=38", "case.r_far=40", "far field", "< case.r_far"]),
+    (("case.perturbation_core=0",), ["case.perturbation_core=0", "> 0"]),
+    (("case.transient=-1",), ["case.transient=-1", ">= 0"]),
+])
+def test_bad_trigger_and_statistics_input_names_the_key(overrides, words):
+    """Out-of-range amplitude, a trigger vortex reaching into the body or the far field, a
+    non-positive core, a negative transient: ConfigError naming the key, value and what is allowed."""
+    with pytest.raises(ConfigError) as e:
+        config_mod.load(CONFIG_DIR / "cylinder.toml", list(overrides))
+    for w in words:
+        assert w in str(e.value), (w, str(e.value))
+
+
+# --- the built-in unsteady config (slow) ---------------------------------------------------------
+
+#: Issue 17's Re = 100 targets (thesis Table 4.2, present method 1.3587, +-0.3325, 0.1653):
+#: metric -> (value, relative tolerance).
+RE100_TARGETS = {"cd_mean": (1.35, 0.03), "cl_amplitude": (0.33, 0.10), "st": (0.165, 0.03)}
+
+
+@pytest.mark.slow
+def test_builtin_re100_config_sheds_and_meets_table_4_2():
+    """configs/cylinder_re100.toml as shipped (48 on the body, 1,920 particles, far field at 40 D,
+    Mach 0.2, cubic reconstruction, trigger on, t_end = 150, statistics over the whole lift periods
+    after t = 100): the wake sheds (St, mean C_D and the C_L amplitude over >= 5 whole periods, the
+    amplitude settled to 5 % over them); against the Table 4.2 targets (mean C_D 1.35 +- 3 %, C_L
+    amplitude 0.33 +- 10 %, St 0.165 +- 3 %) a missed target is reported as an expected failure
+    with the measured values.  Measured (docs/validation.md "Vortex shedding"; 21,011 steps, 28.6 min
+    at load 3.4-5.8): 6 periods, drift 2.5 %, St 0.1407, mean C_D 1.2455, C_L amplitude 0.1960: all
+    three missed (the wake at n_theta = 48 behaves like Re ~ 70)."""
+    from mlsph_jax.simulation import run_problem
+
+    cfg = config_mod.load(CONFIG_DIR / "cylinder_re100.toml", ["output.plots=false", "output.progress=false"])
+    s = run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True).summary
+    stats = s["series_statistics"]
+    assert "metrics" in stats, stats
+    m = stats["metrics"]
+    assert m["n_periods"] >= 5 and abs(stats["cl_amplitude_drift"]) < 0.05, stats
+    missed = {k: (m[k], v) for k, v in RE100_TARGETS.items() if abs(m[k] - v[0]) > v[1] * v[0]}
+    if missed:
+        pytest.xfail(f"Table 4.2 targets missed at n_theta = 48 (issue 17 open): {missed}")
