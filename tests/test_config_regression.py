@@ -30,9 +30,24 @@ def test_reduced_config_reproduces_its_fingerprint(name):
     assert fingerprint_differences(fp, REDUCED[name]) == []
 
 
+#: Built-in configs without a full-size fingerprint, and why (their full runs are the slow
+#: validation tests against published values, which hold their numbers instead).
+FULL_NOT_RECORDED = {
+    "cylinder": "the full steady run (~2 min idle, 10 contended) is tests/test_cylinder.py's slow Re = 40 test",
+    "cylinder_re100": "the full shedding run (~7 min idle, 29 contended) is tests/test_shedding.py's slow test",
+}
+
+
+def test_full_fingerprints_cover_every_config_but_the_listed_ones():
+    full = json.loads(FULL_PATH.read_text())
+    assert sorted(set(builtin_configs()) - set(full)) == sorted(FULL_NOT_RECORDED)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", builtin_configs())
 def test_full_config_reproduces_its_fingerprint(name):
+    if name in FULL_NOT_RECORDED:
+        pytest.skip(f"no full-size fingerprint for {name}: {FULL_NOT_RECORDED[name]}")
     full = json.loads(FULL_PATH.read_text())
     fp = run_fingerprint(name)
     assert fingerprint_differences(fp, full[name]) == []
