@@ -14,12 +14,10 @@ sizes up to UNROLL_MAX and the vmapped per-particle path above that (3D cubic).
 
 Numerics
 --------
-* The moment matrix is factorised by a Cholesky decomposition: unrolled over the (tiny) basis
-  size m per particle (:func:`cholesky_pivots`), and in the batched :func:`operators_block` as a
-  loop over columns of a block of matrices (:func:`cholesky_block`, computed once instead of
-  being fused into every consumer; the solves on the stencil planes stay unrolled).  Because the
-  basis is ordered by degree, the leading principal blocks of M are the moment matrices of the
-  lower degrees, and their Cholesky factors are leading blocks of the same factor.
+* The moment matrix is factorised by a Cholesky decomposition unrolled over the (tiny) basis
+  size m, which vectorises over particles without batched LAPACK calls.  Because the basis is
+  ordered by degree, the leading principal blocks of M are the moment matrices of the lower
+  degrees, and their Cholesky factors are leading blocks of the same factor.
 * Per-particle degree fallback (CF04 §6): the pivot ratio s_j / M_jj (Schur complement of
   monomial j relative to its own weighted norm) measures how far monomial j is from the span of
   the previous ones.  The active degree is the largest l whose monomials all have pivot ratio
@@ -312,45 +310,29 @@ def monomial_gradient_planes(xi, degree: int):
     return out
 
 
-def _take(a, i, axis):
-    return jax.lax.dynamic_index_in_dim(a, i, axis=axis, keepdims=False)
+def cholesky_lists(M, rcond):
+    """Unrolled Cholesky of a nested-list matrix ``M[i][j]`` (arrays, lower triangle read).
 
-
-def cholesky_block(M, rcond):
-    """Guarded Cholesky of a block of moment matrices ``M[m, m, B]`` (particles last, so that
-    every operation runs over contiguous particles), one column per ``fori_loop`` iteration.
-
-    Returns ``(L, ok)``: the factor ``L[m, m, B]`` with the guard of ``cholesky_pivots(M, 0)`` and
-    the pivot flags ``ok[m, B]`` of ``cholesky_pivots(M, rcond)`` (no gradient).  The flags agree
-    up to the first failing pivot (the factors coincide until then), and that pivot alone decides
-    the active degree.  The sums run in the order of an unrolled factorisation (the entries not
-    yet computed are exact zeros).
-
-    A loop, not unrolled: XLA:CPU fuses (duplicates) the producers of an elementwise result into
-    each of its consumers, so an unrolled factorisation was recomputed inside every fused
-    consumer of its entries (the solves' output planes): O(m^3) instructions per consumer, 26,000
-    for a 2D cubic block with the full derivative, 12 s to compile (docs/performance.md,
-    "Compile time").  The loop's output is computed once.
+    Returns ``(L, ok)``: the factor with the guard of ``cholesky_pivots(M, 0)`` and the pivot
+    flags of ``cholesky_pivots(M, rcond)``.  The flags agree up to the first failing pivot (the
+    factors coincide until then), and that pivot alone decides the active degree.
     """
-    m = M.shape[0]
-    rows = jnp.arange(m)[:, None]
-
-    def column(j, carry):
-        L, ok = carry
-        Lj = _take(L, j, 0)                      # row j [m, B]: columns < j filled, zero from j on
-        Mj = _take(M, j, 1)                      # column j of M [m, B]
-        Mjj = _take(Mj, j, 0)
-        s, t = Mjj, Mj
-        for k in range(m):
-            s = s - Lj[k] * Lj[k]
-            t = t - L[:, k] * Lj[k]
-        good = jax.lax.stop_gradient(s > rcond * jnp.maximum(Mjj, 1e-300))
+    m = len(M)
+    L = [[None] * m for _ in range(m)]
+    ok = []
+    for j in range(m):
+        s = M[j][j]
+        for k in range(j):
+            s = s - L[j][k] * L[j][k]
+        ok.append(jax.lax.stop_gradient(s > rcond * jnp.maximum(M[j][j], 1e-300)))
         ljj = jnp.sqrt(jnp.where(s > 0.0, s, 1.0))
-        col = jnp.where(rows > j, t / ljj, jnp.where(rows == j, ljj, 0.0))
-        return (jax.lax.dynamic_update_index_in_dim(L, col, j, axis=1),
-                jax.lax.dynamic_update_index_in_dim(ok, good, j, axis=0))
-
-    return jax.lax.fori_loop(0, m, column, (jnp.zeros_like(M), jnp.zeros(M.shape[1:], bool)))
+        L[j][j] = ljj
+        for i in range(j + 1, m):
+            t = M[i][j]
+            for k in range(j):
+                t = t - L[i][k] * L[j][k]
+            L[i][j] = t / ljj
+    return L, ok
 
 
 def chol_solve_lists(L, B):
@@ -402,17 +384,17 @@ def operators_block(dx, mask, h, *, kernel: Kernel, degree: int, rcond: float, d
     sums = stencil_sums([wP[a] if P[b] is None else wP[a] * P[b] for a, b in tri])
     M = [[None] * m for _ in range(m)]
     for (a, b), s in zip(tri, sums, strict=True):
-        M[a][b] = M[b][a] = s
-    L, ok = cholesky_block(jnp.stack([jnp.stack(row) for row in M]), rcond)
+        M[a][b] = M[b][a] = s[:, None]
+    L, ok = cholesky_lists(M, rcond)
     run, levels = None, []
     for lev in range(degree + 1):               # prefix by degree level (active_monomials)
         for j in np.flatnonzero(mdeg == lev):
             run = ok[j] if run is None else run & ok[j]
         levels.append(run.astype(jnp.int32))
-    active_degree = jax.lax.stop_gradient(sum(levels) - 1)[:, None]     # [B, 1]
-    active = jnp.asarray(mdeg)[:, None, None] <= active_degree           # [m, B, 1]
-    Lm = jnp.where(active[:, None] & active[None, :], L[..., None], jnp.eye(m, dtype=L.dtype)[:, :, None, None])
-    Lm = [[Lm[i, j] if j <= i else None for j in range(m)] for i in range(m)]   # _masked_factor
+    active_degree = jax.lax.stop_gradient(sum(levels) - 1)          # [B, 1]
+    active = [active_degree >= int(mdeg[a]) for a in range(m)]
+    Lm = [[jnp.where(active[i] & active[j], L[i][j], 1.0 if i == j else 0.0) if j <= i else None
+           for j in range(m)] for i in range(m)]                    # _masked_factor
     C = chol_solve_lists(Lm, [jnp.where(active[a], wP[a], 0.0) for a in range(m)])
     values = jnp.where(mask, C[0], 0.0)
     if derivative == "full":
