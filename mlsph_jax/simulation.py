@@ -666,20 +666,26 @@ def run_problem(problem: Problem, cfg: Mapping | None = None, out_dir=None, quie
                 overwrite: bool = False, restart: bool = False) -> Result:
     """Run a problem with the ``[time]``/``[output]`` settings of a resolved config
     (``overwrite``/``restart``: see :meth:`Simulation.run`)."""
-    tcfg = (cfg or {}).get("time", {})
     ocfg = (cfg or {}).get("output", {})
-    sim = Simulation(problem, cfl=tcfg.get("cfl", 0.3), dt=tcfg.get("dt", 0.0), chunk=tcfg.get("chunk", 50),
-                     max_steps=tcfg.get("max_steps", 1_000_000), dt_min=tcfg.get("dt_min", 1e-14),
-                     headroom=(cfg or {}).get("scheme", {}).get("neighbor_headroom", 1.3),
-                     cfl_viscous=tcfg.get("cfl_viscous", 0.125), devices=(cfg or {}).get("run", {}).get("devices", 1),
-                     precision=(cfg or {}).get("run", {}).get("precision", "float64"),
-                     local_time_stepping=tcfg.get("local_time_stepping", False),
-                     local_step_ratio=tcfg.get("local_step_ratio", 4.0),
-                     moving_headroom=(cfg or {}).get("scheme", {}).get("moving_neighbor_headroom", 0.0),
-                     decomposition=(cfg or {}).get("run", {}).get("decomposition", "index"))
+    sim = make_simulation(problem, cfg)
     return sim.run(out_dir, snapshots=ocfg.get("snapshots", 10), progress=ocfg.get("progress", True) and not quiet,
                    plots=ocfg.get("plots", True), overwrite=overwrite, restart=restart,
                    degree_fallback_warn=ocfg.get("degree_fallback_warn", fallback.DEFAULT_WARN))
+
+
+def make_simulation(problem: Problem, cfg: Mapping | None = None) -> Simulation:
+    """The :class:`Simulation` of ``problem`` with the ``[time]``/``[scheme]``/``[run]`` driver
+    settings of a resolved config (what :func:`run_problem` runs; also used by the benchmarks)."""
+    tcfg = (cfg or {}).get("time", {})
+    return Simulation(problem, cfl=tcfg.get("cfl", 0.3), dt=tcfg.get("dt", 0.0), chunk=tcfg.get("chunk", 50),
+                      max_steps=tcfg.get("max_steps", 1_000_000), dt_min=tcfg.get("dt_min", 1e-14),
+                      headroom=(cfg or {}).get("scheme", {}).get("neighbor_headroom", 1.3),
+                      cfl_viscous=tcfg.get("cfl_viscous", 0.125), devices=(cfg or {}).get("run", {}).get("devices", 1),
+                      precision=(cfg or {}).get("run", {}).get("precision", "float64"),
+                      local_time_stepping=tcfg.get("local_time_stepping", False),
+                      local_step_ratio=tcfg.get("local_step_ratio", 4.0),
+                      moving_headroom=(cfg or {}).get("scheme", {}).get("moving_neighbor_headroom", 0.0),
+                      decomposition=(cfg or {}).get("run", {}).get("decomposition", "index"))
 
 
 def restart(out_dir, overrides=(), quiet: bool = False) -> Result:
