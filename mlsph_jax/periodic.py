@@ -24,11 +24,17 @@ whole periods of the reference signal (the lift C_L):
   its neighbours (Gaussian interpolation; its bias for a Hann window is below 2 % of a bin).
 
 What is reported when the signal does not allow it (:func:`whole_period_statistics` returns a
-``note`` instead of numbers, never a NaN): no samples after ``t0``; a lift that does not oscillate
-above ``floor`` (a mirror-symmetric flow keeps |C_L| ~ 1e-13: no shedding); fewer than
-``min_periods`` whole periods after ``t0``; fewer than ``min_samples`` samples per period (the
-output interval does not resolve the period).  The relative change of the amplitude from the
-first to the last whole period (``amplitude_drift``) says whether the transient is over.
+``note`` instead of numbers, never a NaN): no samples after ``t0``; non-finite values; a lift that
+does not oscillate above ``floor`` times the flow's scale (the largest |value| of the ``others``
+columns, e.g. the drag; 1 without them: a mirror-symmetric flow keeps |C_L| ~ 1e-13 of C_D, a
+float32 run ~1e-6: no shedding); fewer than ``min_periods`` whole periods after ``t0``; fewer than
+``min_samples`` samples per period (the output interval does not resolve the period), or a gap
+in the sampling longer than period / ``min_samples``; crossing intervals that spread by more than
+``max_spread`` of their median, or a zero-crossing frequency more than ``max_mismatch`` (or one
+spectral bin) away from the spectral one (extra or missing crossings: a ripple at another
+frequency, noise); an amplitude that changes by more than ``max_drift`` from the first to the
+last whole period (a growing or decaying oscillation: the transient is not over, or the flow does
+not shed).  ``rms`` is the rms of the fluctuation y - mean.
 """
 
 from __future__ import annotations
@@ -41,13 +47,19 @@ import numpy as np
 #: Defaults: whole periods needed, samples per period needed, lift floor (round-off level).
 MIN_PERIODS = 2
 MIN_SAMPLES = 8
-FLOOR = 1e-8
+FLOOR = 1e-5
+#: Largest spread of the crossing intervals, mismatch of the two frequencies, amplitude drift.
+MAX_SPREAD = 0.2
+MAX_MISMATCH = 0.03
+MAX_DRIFT = 0.1
 
 
 def upward_crossings(t: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Times at which ``y`` crosses 0 upwards (y[k] < 0 <= y[k + 1]), linear between samples."""
+    """Times at which ``y`` crosses 0 upwards (y[k] < 0 < y[k + 1], or y[k + 1] = 0 < y[k + 2]: a
+    touch of zero from below is not a crossing), linear between samples."""
     t, y = np.asarray(t, float), np.asarray(y, float)
-    k = np.flatnonzero((y[:-1] < 0.0) & (y[1:] >= 0.0))
+    k = np.flatnonzero((y[:-1] < 0.0) & (y[1:] > 0.0) | (y[:-1] < 0.0) & (y[1:] == 0.0)
+                       & np.concatenate([y[2:] > 0.0, [False]]))
     return t[k] - y[k] * (t[k + 1] - t[k]) / (y[k + 1] - y[k])
 
 
@@ -99,7 +111,8 @@ def spectral_frequency(t: np.ndarray, y: np.ndarray) -> float:
 
 def whole_period_statistics(t, y, t0: float = 0.0, others: Mapping[str, np.ndarray] | None = None, *,
                             min_periods: int = MIN_PERIODS, min_samples: int = MIN_SAMPLES,
-                            floor: float = FLOOR) -> dict:
+                            floor: float = FLOOR, max_spread: float = MAX_SPREAD,
+                            max_mismatch: float = MAX_MISMATCH, max_drift: float = MAX_DRIFT) -> dict:
     """Statistics of the periodic signal ``y(t)`` over its whole periods after ``t0`` (module
     docstring).  Returns ``frequency``, ``frequency_spectral``, ``mean``, ``amplitude``, ``rms``,
     ``n_periods``, ``window`` [t_first, t_last], ``samples_per_period``, ``amplitude_drift`` and
@@ -111,16 +124,22 @@ def whole_period_statistics(t, y, t0: float = 0.0, others: Mapping[str, np.ndarr
         return {"note": f"too short: {np.count_nonzero(after)} samples after the transient t = {t0:g} "
                         f"(the run ends at t = {t[-1] if len(t) else float('nan'):g})"}
     ta, ya = t[after], y[after]
+    cols = {"y": ya, **{k: np.asarray(v, float)[after] for k, v in (others or {}).items()}}
+    for k, v in cols.items():
+        if not np.all(np.isfinite(v)):
+            return {"note": f"non-finite values of {k} at t = {float(ta[np.argmin(np.isfinite(v))]):g}"}
+    # the scale of the flow: the largest |value| of the other columns (the drag), 1 without them
+    scale = max((float(np.max(np.abs(v))) for k, v in cols.items() if k != "y"), default=1.0)
     ybar = float(np.mean(ya))
     swing = float(np.max(np.abs(ya - ybar)))
-    if swing <= floor:
-        return {"note": f"no oscillation: |y - mean| <= {swing:.3g} after t = {t0:g} (below {floor:g}; a "
-                        "mirror-symmetric flow does not shed)"}
+    if swing <= floor * scale:
+        return {"note": f"no oscillation: |y - mean| <= {swing:.3g} after t = {t0:g} (below {floor:g} of the "
+                        f"signal's scale {scale:.3g}; a mirror-symmetric flow does not shed)"}
     for _ in range(2):   # the mean over whole periods, then the crossings of y minus it
         cross = upward_crossings(ta, ya - ybar)
         if len(cross) < min_periods + 1:
             return {"note": f"too short: {max(len(cross) - 1, 0)} whole period(s) after t = {t0:g}, "
-                            f"{min_periods} needed (run longer: larger time.t_end)",
+                            f"{min_periods} needed (run longer: larger time.t_end, or a shorter transient)",
                     "n_periods": max(len(cross) - 1, 0)}
         ybar = window_mean(ta, ya, cross[0], cross[-1])
     t_first, t_last = float(cross[0]), float(cross[-1])
@@ -131,15 +150,32 @@ def whole_period_statistics(t, y, t0: float = 0.0, others: Mapping[str, np.ndarr
     if per_sample < min_samples:
         return {"note": f"under-resolved: {per_sample:.3g} samples per period (period {period:.4g}), "
                         f"{min_samples} needed (more output.snapshots)", "n_periods": n_per}
+    gap = float(np.max(np.diff(np.concatenate([[t_first], ta[inside], [t_last]]))))
+    if gap > period / min_samples * 1.5:
+        return {"note": f"a gap of {gap:.3g} in the samples (period {period:.4g}): fewer than {min_samples} "
+                        "samples per period there", "n_periods": n_per}
+    intervals = np.diff(cross)
+    spread = float(np.max(np.abs(intervals - np.median(intervals))) / np.median(intervals))
+    f_spec = float(spectral_frequency(ta[inside], ya[inside]))
+    mismatch = abs(1.0 / period - f_spec)
+    if spread > max_spread or mismatch > max(max_mismatch / period, 1.0 / (t_last - t_first)):
+        return {"note": f"irregular: crossing intervals spread by {spread:.3g} of their median, zero-crossing "
+                        f"frequency {1.0 / period:.4g} against spectral {f_spec:.4g} (another frequency or noise "
+                        "in the signal)", "n_periods": n_per}
     amps = []
     for a, b in zip(cross[:-1], cross[1:], strict=True):
         m = (ta >= a) & (ta <= b)
         amps.append(0.5 * (_extremum(ta[m], ya[m], 1.0) - _extremum(ta[m], ya[m], -1.0)))
-    out = {"frequency": 1.0 / period, "frequency_spectral": float(spectral_frequency(ta[inside], ya[inside])),
+    drift = float((amps[-1] - amps[0]) / amps[-1])
+    if abs(drift) > max_drift:
+        return {"note": f"not saturated: the amplitude changes by {drift:+.3g} from the first to the last whole "
+                        f"period after t = {t0:g} (a growing or decaying oscillation; a longer transient, or no "
+                        "shedding)", "n_periods": n_per, "amplitude_drift": drift}
+    out = {"frequency": 1.0 / period, "frequency_spectral": f_spec,
            "mean": ybar, "amplitude": float(np.mean(amps)),
-           "rms": math.sqrt(window_mean(ta, ya, t_first, t_last, power=2)),
+           "rms": math.sqrt(window_mean(ta, ya - ybar, t_first, t_last, power=2)),
            "n_periods": n_per, "window": [t_first, t_last], "samples_per_period": float(per_sample),
-           "amplitude_drift": float((amps[-1] - amps[0]) / amps[-1])}
+           "amplitude_drift": drift}
     if others:
         out["means"] = {k: window_mean(t, np.asarray(v, float), t_first, t_last) for k, v in others.items()}
     return out

@@ -452,8 +452,13 @@ class Simulation:
             summary["degree_fallback"] = fallback.summary(carry.fallback, pb.scheme, thr)
         if series:
             summary["timeseries"] = {k: [row[k] for row in series] for k in series[0]}
-            if pb.series_statistics is not None and failure is None:
-                stats = pb.series_statistics({k: np.asarray(v, float) for k, v in summary["timeseries"].items()})
+            if pb.series_statistics is not None and failure is not None:
+                summary["series_statistics"] = {"note": f"the run failed at t = {float(carry.t):g}: no statistics"}
+            elif pb.series_statistics is not None:
+                try:   # a statistics error must not cost the run its summary and time series
+                    stats = pb.series_statistics({k: np.asarray(v, float) for k, v in summary["timeseries"].items()})
+                except Exception as e:  # noqa: BLE001
+                    stats = {"note": f"the statistics failed: {type(e).__name__}: {e}"}
                 summary["series_statistics"] = stats
                 summary["metrics"].update({k: float(v) for k, v in stats.get("metrics", {}).items()
                                            if math.isfinite(v)})

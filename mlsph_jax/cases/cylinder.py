@@ -63,20 +63,26 @@ start (an initial perturbation of the flow field) or by a short rotation or disp
 body (Braza, Chassaing & Ha Minh 1986, J. Fluid Mech. 165, rotated the cylinder for a short time);
 a limit cycle that is reached does not depend on the trigger. Here the trigger is an initial
 perturbation, ``case.perturbation`` > 0 (default 0: off): a shielded Gaussian vortex (stream
-function psi = A exp(-|x - x_v|^2 / sigma^2), divergence-free, zero circulation, its velocity
-negligible beyond 4 sigma) centred on the wake axis at x_v = (``perturbation_x`` D, 0), core sigma
-= ``perturbation_core`` D, peak swirl speed ``perturbation`` U_inf, added to the free stream of the
-fluid particles at t = 0 (:func:`trigger_velocity`). It is a plain function of the configuration
-(in :func:`initial_state`, which ``problem.particles_at`` also uses, so it is as differentiable as
-the rest of the initial state), needs no time-dependent boundary data, and is carried out of the
-domain by the stream: after the transient nothing of it remains (statistics are taken after
-``case.transient``). A rotation of the body over a time window would need the time inside the
-right-hand side, which the integrator does not pass. Statistics of the shedding
+function psi = A exp(-|x - x_v|^2 / sigma^2), divergence-free, zero circulation in the unbounded
+plane, its velocity negligible beyond 4 sigma; kept two cores clear of the body, whose cut of the
+shield would leave net circulation; the pressure and density are the free stream's, not in
+cyclostrophic balance with the swirl, so the start carries a small acoustic transient; the vortex
+is fixed in space, not moved with the body's parameters) centred on the wake axis at x_v =
+(``perturbation_x`` D, 0), core sigma = ``perturbation_core`` D, peak swirl speed ``perturbation``
+U_inf, added to the free stream of the fluid particles at t = 0 (:func:`trigger_velocity`). It is a
+plain function of the configuration (in :func:`initial_state`, which ``problem.particles_at`` also
+uses, so it is as differentiable as the rest of the initial state), needs no time-dependent
+boundary data, and is carried out of the domain by the stream: after the transient nothing of it
+remains (statistics are taken after ``case.transient``). A rotation of the body over a time window
+would need the time inside the right-hand side, which the integrator does not pass. Statistics of the shedding
 (:func:`shedding_statistics`, :mod:`mlsph_jax.periodic`; summary.json ``series_statistics`` and
 metrics ``st``, ``st_spectral``, ``cd_mean``, ``cl_mean``, ``cl_amplitude``, ``cl_rms``,
 ``n_periods``): the Strouhal number f D / U_inf from the upward zero crossings of C_L, means,
-amplitude and rms over the whole lift periods after ``case.transient``; a note instead of numbers
-when the run is too short, does not shed or the output interval does not resolve the period. C_L
+amplitude and rms (of the fluctuation) over the whole lift periods after ``case.transient``; a
+note instead of numbers when the run is too short, does not shed, is not saturated, is irregular,
+has non-finite values, failed, or runs local time steps, or the output interval does not resolve
+the period.  The statistics are host-side numbers (numpy), so ``mlsph sensitivity --of cd_mean``
+is not available; the differentiable objectives are the instantaneous ``cd``/``cl``. C_L
 and C_D are recorded at the output times (``output.snapshots`` of them), so the output interval
 t_end / snapshots must resolve the period (~6 D / U_inf at Re = 100: >= 8 samples per period are
 required, ~24 used).
@@ -208,14 +214,18 @@ def check_cylinder(cfg: dict) -> None:
         D, core, xv = 2.0 * c["radius"], c["perturbation_core"], c["perturbation_x"]
         # the body's largest half-extent in units of D (an ellipse: its semi-major axis)
         half = 0.5 * math.sqrt(max(c["aspect"], 1.0 / c["aspect"])) if c["body"] == "ellipse" else 0.5
-        if xv - core <= half:
+        if xv - 2.0 * core < half:   # its shield too: cut by the body it would leave net circulation
             problems.append(f"invalid case.perturbation_x={show(xv)} with case.perturbation_core={show(core)}: the "
-                            f"trigger vortex's core reaches into the body (x / D <= {half:.4g}); allowed: "
-                            f"case.perturbation_x - case.perturbation_core > {half:.4g}")
+                            f"trigger vortex (core and shield, two core radii) reaches into the body (x / D < "
+                            f"{half:.4g}); allowed: case.perturbation_x - 2 case.perturbation_core >= {half:.4g}")
         elif (xv + TRIGGER_REACH * core) * D >= c["r_far"]:
             problems.append(f"invalid case.perturbation_x={show(xv)} with case.perturbation_core={show(core)} and "
                             f"case.r_far={show(c['r_far'])}: the trigger vortex reaches the far field; allowed: "
                             f"(case.perturbation_x + {TRIGGER_REACH:g} case.perturbation_core) D < case.r_far")
+    if c["perturbation"] > 0.0 and cfg["time"]["local_time_stepping"]:
+        problems.append(f"invalid case.perturbation={show(c['perturbation'])} with time.local_time_stepping=true: "
+                        "the trigger starts an unsteady flow, and local time steps advance a pseudo-time (no "
+                        "shedding period); allowed: time.local_time_stepping=false with a trigger")
     bf = phys["body_force"]
     if bf and any(f != 0.0 for f in bf):
         p_inf = RHO_INF * (U_INF / c["mach"]) ** 2 / cfg["eos"]["gamma"]
@@ -422,6 +432,8 @@ def build(cfg: Mapping) -> Problem:
                    outline=None if c["body"] == "circle" else np.asarray(walls.points(P).x))
 
     def series_statistics(series) -> dict:
+        if cfg["time"]["local_time_stepping"]:
+            return {"note": "local time steps: t is a pseudo-time, no shedding statistics"}
         return shedding_statistics(series, c["transient"], D=2.0 * R)
 
     return Problem("cylinder", particles, params, scheme, domain, cfg["time"]["t_end"], metrics, plot,
