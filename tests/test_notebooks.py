@@ -51,7 +51,13 @@ def test_notebook_is_stored_executed(path):
     assert any("image/png" in o.get("data", {}) for o in outputs), "no plot stored"
 
 
-@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
+#: Executed under ``slow`` only (CI time): the gradients-and-calibration notebook (~70 s), whose
+#: code paths the default suite runs in tests/test_differentiable.py and the README's examples.
+SLOW_NOTEBOOKS = ("02_gradients_and_calibration.ipynb",)
+
+
+@pytest.mark.parametrize("path", [pytest.param(p, marks=pytest.mark.slow) if p.name in SLOW_NOTEBOOKS else p
+                                  for p in NOTEBOOKS], ids=[p.name for p in NOTEBOOKS])
 def test_notebook_executes(path):
     _need_tools()
     nb = nbformat.read(path, as_version=4)

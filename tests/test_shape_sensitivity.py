@@ -74,6 +74,7 @@ def test_mapped_layout_of_the_circle_is_the_polar_layout_bit_for_bit():
     assert np.array_equal(np.asarray(x), lay.x) and np.array_equal(np.asarray(vol), lay.vol)
 
 
+@pytest.mark.slow   # 22-27 s of compilation; the circle's own numbers are held by its fingerprint
 def test_ellipse_of_aspect_one_is_the_circle_bit_for_bit():
     """case.body = ellipse with aspect 1 and alpha 0 gives the circle's particles, wall quadrature
     and right-hand side bit for bit (sqrt(1) = 1, sin(-0) = -0: every operation exact)."""
