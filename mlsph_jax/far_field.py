@@ -72,10 +72,14 @@ FAR_FIELDS: Registry = Registry("case.far_field", protocol=("setup",),
 _INVARIANT_EOS = ("ideal_gas", "stiffened_gas", "tait")
 
 
+def _pc(eos: str, params):
+    """The stiffened gas' pressure constant (0 for the ideal gas)."""
+    return params["eos.pc"] if eos == "stiffened_gas" else 0.0
+
+
 def _entropy(rho, p, eos: str, params):
     """s = (p + pc) / rho^gamma (ideal gas: pc = 0); unused for Tait (barotropic)."""
-    pc = params["eos.pc"] if eos == "stiffened_gas" else 0.0
-    return (p + pc) / rho ** params["eos.gamma"]
+    return (p + _pc(eos, params)) / rho ** params["eos.gamma"]
 
 
 def _state_from(c, s, eos: str, params):
@@ -84,9 +88,8 @@ def _state_from(c, s, eos: str, params):
     if eos == "tait":
         rho = params["eos.rho0"] * (c / params["eos.c0"]) ** (2.0 / (g - 1.0))
         return rho, None
-    pc = params["eos.pc"] if eos == "stiffened_gas" else 0.0
     rho = (c * c / (g * s)) ** (1.0 / (g - 1.0))
-    return rho, rho * c * c / g - pc
+    return rho, rho * c * c / g - _pc(eos, params)
 
 
 def inflow_outflow_state(inner, outer, normal, eos: str, params):

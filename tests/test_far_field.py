@@ -115,7 +115,6 @@ def test_invariants_come_from_where_they_start(eos):
     rho2, vel2, _ = characteristic_state(wave, outer, n, eos, P)
     assert float(jnp.max(jnp.abs(rho2 / rho_w - 1))) <= 1e-12
     assert float(jnp.max(jnp.abs(vel2 - vel_w))) <= 1e-12 * float(jnp.max(c_w))
-    assert float(jnp.max(jnp.abs(un_o))) > 0   # (a real stream, not fluid at rest)
 
 
 def test_supersonic_normal_speeds_take_one_side():
