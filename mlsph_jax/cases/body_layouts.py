@@ -61,7 +61,9 @@ MIN_SPACINGS_AROUND = 20
 #: Parameters a lattice layout cannot follow (shape derivatives refused).
 SHAPE_FIELDS = ("centre", "radius", "aspect")
 
-BODY_LAYOUTS: Registry = Registry("case.layout (body)", protocol=("check", "build"),
+#: Layouts around a body (the ``cylinder`` case's ``case.layout``; the kind is a label, since other
+#: cases' ``case.layout`` keys name their own, unregistered, layouts).
+BODY_LAYOUTS: Registry = Registry("body_layout", protocol=("check", "build"),
                                   doc="particle layouts around a body in a stream (the cylinder's case.layout)")
 
 

@@ -9,6 +9,14 @@ pi / n_theta), volumes the annular-sector areas.  The thesis' setup (120 points 
 10,800 particles = 120 x 90 rings) is ``--set case.n_theta=120 case.r_far=40`` (86 fluid rings
 to r = 80 D and 4 far-field rings).
 
+Other layouts (``case.layout``, :mod:`mlsph_jax.cases.body_layouts`, decision 70): ``"cartesian"``,
+a uniform square lattice of spacing ``lattice_ratio`` x perimeter / ``n_theta`` over the disc of
+``r_far`` with the body cut out (no particle inside it or closer than h/2 to it), and ``"blend"``,
+the polar rings out to ``blend_radius`` with the lattice of the last ring's spacing beyond; their
+volumes are Voronoi cells clipped to the fluid, their far field is the lattice continued as frozen
+particles, and they do not follow the body's shape parameters (shape derivatives need the polar
+layout).  The body's quadrature keeps ``n_theta`` points on every layout.
+
 Body.  No-slip adiabatic wall by the boundary integral of thesis eq. 4.24
 (:mod:`mlsph_jax.wall_integral`, ``boundary_integral``; SPEC §5.8): a
 :class:`~mlsph_jax.geometry.Circle` named ``body`` with ``n_theta`` quadrature points, no ghosts.
@@ -490,7 +498,8 @@ CYLINDER = register_case(
     "cylinder", CYLINDER_KEYS, build, check=check_cylinder, dim=2,
     defaults_override={"eos.kind": "ideal_gas", "eos.gamma": 1.4, "time.t_end": 30.0, "output.snapshots": 15},
     doc="Flow past a circular cylinder (thesis §4.5.2): a cylinder of radius `radius` in a free stream "
-        "at Reynolds number `re` and Mach number `mach`, body-fitted polar layout, no-slip body by the "
+        "at Reynolds number `re` and Mach number `mach`, body-fitted polar layout (or a Cartesian lattice with the "
+        "body cut out, or a blend of the two), no-slip body by the "
         "boundary integral of thesis eq. 4.24, frozen free-stream far field beyond `r_far`; drag, lift "
         "and pressure coefficients against thesis Table 4.1.")
 
@@ -500,6 +509,8 @@ def _title(cfg, n: int, t: float | None = None) -> str:
     when = f", t={t:.4g}" if t is not None else ""
     if c["body"] == "ellipse":
         when += f", ellipse A={c['aspect']:g}, alpha={c['alpha']:g} deg"
+    if c["layout"] != "polar":
+        when += f", {c['layout']} layout"
     return (f"cylinder (Re={c['re']:g}, M={c['mach']:g}, {c['n_theta']} on the body, {n} particles{when}): "
             f"{s['method']}, reconstruction degree {s['reconstruction_degree']}")
 
