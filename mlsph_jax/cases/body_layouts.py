@@ -151,7 +151,8 @@ def voronoi_volumes(points: np.ndarray, n_fluid: int, body: np.ndarray) -> np.nd
         if polygon_area(cell) < 0.0:
             cell = cell[::-1]
         area = polygon_area(cell)
-        if np.min(np.hypot(*(cell - centre).T)) < reach:
+        # the cell can overlap the body only if it reaches into the body's circumscribed circle
+        if inside_polygon(centre[None], cell)[0] or distance_to_polygon(centre[None], cell)[0] < reach:
             cut = clip_to_convex(body, cell)
             area -= abs(polygon_area(cut)) if len(cut) else 0.0
         vol[i] = area
