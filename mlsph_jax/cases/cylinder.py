@@ -176,7 +176,14 @@ def check_cylinder(cfg: dict) -> None:
     support radius kappa beta sqrt(V_0) (V_0 the volume of a first-ring particle); otherwise the
     body is too big for the layout and overlaps the far-field rings (the set-up also checks
     every wall stencil for frozen particles). A `physics.body_force` f must keep the hydrostatic
-    pressure ratio across the domain moderate: rho_inf |f| 2 `r_far` / p_inf <= 50."""
+    pressure ratio across the domain moderate: rho_inf |f| 2 `r_far` / p_inf <= 50. Lattice layouts
+    (`layout`, decision 70): `cartesian` needs n_theta / `lattice_ratio` >= 20 lattice spacings around
+    the body and `blend` a `blend_radius` beyond the body's first two rings and two lattice spacings
+    inside `r_far`; both need `r_far` beyond the body's extent plus h/2 plus the support radius of the
+    lattice spacing h plus h; `lattice_ratio` / `blend_radius` may only be set for the layout that uses
+    them. The set-up refuses a lattice whose particles next to the body are smaller than the body's
+    quadrature pieces (naming `lattice_ratio` or `n_theta`) and any layout leaving a fluid particle
+    inside the body."""
     c, phys = cfg["case"], cfg["physics"]
     problems = []
     if cfg["eos"]["kind"] != "ideal_gas":
