@@ -163,8 +163,9 @@ def reconstruct(F, geom, degree: int, taylor: bool, ppd):
 # ---------------------------------------------------------------------------------------------
 
 LOW_MACH_RECONSTRUCTIONS: Registry = Registry(
-    "scheme.low_mach_reconstruction", protocol=("correct",),
-    doc="low-Mach correction of the reconstructed Riemann states (applied before any flux)")
+    "scheme.low_mach_reconstruction", protocol=("correct", "mirror_jump_scale"),
+    doc="low-Mach correction of the reconstructed Riemann states (applied before any flux, and to the "
+        "walls' mirror Riemann problem)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -175,6 +176,10 @@ class NoLowMachCorrection:
 
     def correct(self, Um, Up, w, eos, params, scheme):
         return Um, Up
+
+    def mirror_jump_scale(self, rel, c):
+        """Factor on the normal velocity of a wall's mirror Riemann problem: 1 (unchanged)."""
+        return jnp.ones_like(c)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -215,6 +220,14 @@ class ThornberCorrection:
             return out
 
         return apply(Um, velm, dm), apply(Up, velp, dp)
+
+    def mirror_jump_scale(self, rel, c):
+        """The same correction for a wall's mirror Riemann problem (the state at the wall point
+        against its mirror image, :meth:`~mlsph_jax.wall_integral.BoundaryIntegralWalls.wall_state`):
+        the mirror pair's velocities have the mean u_t and the jump 2 v_n, so the corrected normal
+        velocity is z v_n with z = min(1, |u - u_w| / c) (both sides have the same Mach number)."""
+        comps = [rel[..., k] for k in range(rel.shape[-1])]
+        return jnp.minimum(1.0, local_mach(comps, comps, c, c))
 
 
 LOW_MACH_RECONSTRUCTIONS.register("none", NoLowMachCorrection())

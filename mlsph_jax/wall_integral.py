@@ -322,7 +322,9 @@ class BoundaryIntegralWalls:
                                             rcond=scheme.rcond, derivative="fixed_centre", with_coeffs=False)
         interp = lambda f: jnp.einsum("bk,bk...->b...", vals, f[st.idx])  # noqa: E731
         rho_b, c_b = interp(prim.rho), interp(prim.c)
-        vn = jnp.sum((interp(prim.vel) - bp.velocity) * bp.normal, axis=-1)       # into the wall
+        rel = interp(prim.vel) - bp.velocity
+        vn = jnp.sum(rel * bp.normal, axis=-1)                                   # into the wall
+        vn = vn * scheme.component("low_mach_reconstruction").mirror_jump_scale(rel, c_b)
         # Rusanov flux between the interpolated state and its mirror image across the wall:
         # no mass, momentum (p + rho vn (vn + |vn| + c)) n  (SPEC §5.8, the Riemann alternative)
         pb = interp(prim.p) + rho_b * vn * (vn + jnp.abs(vn) + c_b)

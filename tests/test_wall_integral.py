@@ -148,6 +148,34 @@ def test_free_slip_wall_keeps_a_tangential_uniform_flow():
     assert np.all(np.asarray(dq2[wall_rows, 1]) < -1e-3)
 
 
+@pytest.mark.parametrize("speed", [0.05, 30.0])
+def test_wall_mirror_pressure_takes_the_low_mach_correction(speed):
+    """The wall pressure p* = p_b + rho v_n (v_n + |v_n| + c) of the mirror Riemann problem takes
+    the scheme's low-Mach correction like every pair (decision 71): with ``thornber`` the normal
+    jump is z v_n, z = min(1, M_loc), so the acoustic penalty rho c v_n shrinks by ~M at low Mach
+    and is the plain one (bit for bit) where the flow at the wall is supersonic."""
+    base = Scheme(eos="ideal_gas")
+    lm = Scheme(eos="ideal_gas", low_mach_reconstruction="thornber")
+    rng = np.random.default_rng(4)
+    p, bw, _ = _channel(base, GAS, vel=(speed, 0.0))
+    v = speed * (1.0 + 0.2 * rng.standard_normal((p.n, 2)))     # v_n != 0 at the walls
+    p = p.replace(q=p.vol[:, None] * to_conservative(jnp.ones(p.n), jnp.asarray(v), jnp.ones(p.n),
+                                                     get_eos("ideal_gas"), GAS))
+    pr = _prim(p, base, GAS)
+    _, st, vals, pb0, _ = bw.wall_state(p, GAS, base, pr)
+    *_, pb1 = bw.wall_state(p, GAS, lm, pr)[:4]
+    p_wall = jnp.einsum("bk,bk->b", vals, pr.p[st.idx])
+    pen0, pen1 = np.asarray(pb0 - p_wall), np.asarray(pb1 - p_wall)
+    assert np.max(np.abs(pen0)) > 1e-3                                 # the penalty is there
+    mach = np.asarray(jnp.linalg.norm(jnp.einsum("bk,bkd->bd", vals, pr.vel[st.idx]), axis=-1)
+                      / jnp.einsum("bk,bk->b", vals, pr.c[st.idx]))
+    if speed > 1.0:
+        assert np.all(mach >= 1.0) and np.array_equal(pen0, pen1)
+    else:
+        assert np.all(mach < 0.1)
+        assert np.all(np.abs(pen1) <= 1.01 * mach * np.abs(pen0) + 1e-15)
+
+
 def test_exact_steady_poiseuille_has_no_residual_in_the_wall_rows():
     """Linear consistency of the wall rows (decision 54): the exact steady Poiseuille state
     u = f/(2 nu) y (1 - y) has a linear viscous flux, so every particle's rate, the three rows next

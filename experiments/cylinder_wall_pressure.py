@@ -1,0 +1,83 @@
+"""The parts of the cylinder's front (and base) pressure coefficient on a finished run.
+
+For the final state of ``mlsph run configs/cylinder.toml --out OUT`` (its ``checkpoint.h5`` and
+``config.toml``) prints, at the body's quadrature points nearest to theta = pi (front) and 0 (base):
+C_p of the nearest first-ring particle, of the MLS interpolation of the particles' pressure at the
+wall (linear and quadratic, the case's own wall stencils) and of the wall pressure p* of the
+scheme (``BoundaryIntegralWalls.wall_state``: the linear wall state plus the acoustic term of the
+mirror Riemann problem, decisions 54 and 71).  docs/validation.md "The front stagnation pressure".
+
+    python experiments/cylinder_wall_pressure.py OUT [OUT ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+
+from mlsph_jax import config
+from mlsph_jax.approximation import mls
+from mlsph_jax.cases import build_problem
+from mlsph_jax.cases.cylinder import RHO_INF, U_INF, free_stream
+from mlsph_jax.checkpoint import read_checkpoint
+from mlsph_jax.eos import get_eos, to_primitive
+from mlsph_jax.kernels import get_kernel
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def wall_pressure_parts(out: str | Path) -> dict:
+    """C_p parts at the front and base quadrature points of the final state in ``out``."""
+    cfg = config.load(Path(out) / "config.toml", [])
+    pb = build_problem(cfg)
+    p = read_checkpoint(out).particles
+    P, sc, walls = pb.params, pb.scheme, pb.boundary
+    prim = to_primitive(p.U, get_eos(sc.eos), P)
+    bp = walls.points(P)
+    st = walls.stencils(p, bp.x)
+    p_inf = float(free_stream(cfg, np.zeros((1, 2)), P)[2][0])
+    q_inf = 0.5 * RHO_INF * U_INF ** 2
+    cp = lambda v: (float(v) - p_inf) / q_inf  # noqa: E731
+    xb = np.asarray(bp.x)
+    theta = np.mod(np.arctan2(xb[:, 1], xb[:, 0]), 2.0 * math.pi)
+    interp = {}
+    for deg in (1, 2):
+        vals, _, _, _ = mls.operators_block(st.dx, st.mask, st.h, kernel=get_kernel(walls.kernel), degree=deg,
+                                            rcond=sc.rcond, derivative="fixed_centre", with_coeffs=False)
+        interp[deg] = np.asarray(jnp.einsum("bk,bk->b", vals, prim.p[st.idx]))
+    pstar = np.asarray(walls.wall_state(p, P, sc, prim)[3])
+    x = np.asarray(p.x)
+    fluid = np.asarray(p.kind) == 0
+    out_ = {}
+    for name, th0 in (("front", math.pi), ("base", 0.0)):
+        b = int(np.argmin(np.abs(np.angle(np.exp(1j * (theta - th0))))))
+        near = np.where(fluid)[0][np.argmin(np.sum((x[fluid] - xb[b]) ** 2, axis=1))]
+        out_[name] = {"theta_deg": math.degrees(theta[b]), "first_ring_particle": cp(prim.p[near]),
+                      "linear_wall": cp(interp[1][b]), "quadratic_wall": cp(interp[2][b]), "scheme_wall": cp(pstar[b])}
+    return out_
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("runs", nargs="+", help="output directories of finished cylinder runs")
+    args = ap.parse_args()
+    res = {}
+    for out in args.runs:
+        res[str(out)] = parts = wall_pressure_parts(out)
+        for name, v in parts.items():
+            print(f"{out} {name:5s} theta {v['theta_deg']:7.2f}  particle {v['first_ring_particle']:.4f}  "
+                  f"linear {v['linear_wall']:.4f}  quadratic {v['quadratic_wall']:.4f}  "
+                  f"scheme p* {v['scheme_wall']:.4f}")
+    dest = ROOT / "experiments" / "output" / "cylinder_wall_pressure.json"
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    dest.write_text(json.dumps(res, indent=2))
+    print(f"wrote {dest}")
+
+
+if __name__ == "__main__":
+    main()
