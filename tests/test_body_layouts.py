@@ -105,18 +105,21 @@ def test_uniform_stream_stays_uniform_on_the_lattice_layouts(layout):
     """A uniform free stream on the layout with its frozen far field and no body has a zero
     right-hand side to round-off, frozen particles get no update; with the body, a fluid at rest
     (the wall's own velocity) has zero boundary terms and right-hand side to round-off, while the
-    stream through the no-slip body does not (the check can fail)."""
+    stream through the no-slip body does not (the check can fail: 4-8 relative).  Round-off of the
+    config's cubic reconstruction (decision 71), measured relative to max |q|: 1.9e-13 on the
+    lattice, 3.9e-12 on the blend, whose junction cells are irregular (the MLS moment matrices of
+    a cubic basis there are less well conditioned); bound 2e-11."""
     cfg = _cfg(layout, ("case.r_far=2.0", "case.blend_radius=1.0") if layout == "blend" else
                ("case.r_far=2.0", "case.lattice_ratio=1.5"))
     pb = build_problem(cfg)
     p = pb.particles
     scale = float(jnp.max(jnp.abs(p.q)))
     _, _, dq = rhs_once(pb, p, None)
-    assert float(jnp.max(jnp.abs(dq))) <= 1e-12 * scale
+    assert float(jnp.max(jnp.abs(dq))) <= 2e-11 * scale
     frozen = np.asarray(p.kind) == int(Kind.FROZEN)
     assert frozen.sum() > 0 and np.all(np.asarray(dq)[frozen] == 0.0)
     _, _, dq_rest = rhs_once(pb, stream_particles(pb, cfg, 0.0), pb.boundary)
-    assert float(jnp.max(jnp.abs(dq_rest))) <= 1e-12 * scale
+    assert float(jnp.max(jnp.abs(dq_rest))) <= 2e-11 * scale
     _, _, dq_moving = rhs_once(pb, p, pb.boundary)
     assert float(jnp.max(jnp.abs(dq_moving))) > 1e-3 * scale
 
