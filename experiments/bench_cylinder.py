@@ -24,6 +24,9 @@ Usage::
 
     python experiments/bench_cylinder.py --n-theta 32 48 --steps 200 --repeat 5
     python experiments/bench_cylinder.py --n-theta --steady --ratios 8 16
+    python experiments/bench_cylinder.py --n-theta 32 --set case.layout=blend case.blend_radius=1.5 case.r_far=4
+
+``--set`` adds config overrides to the timed layouts (e.g. another ``case.layout``, decision 72).
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ import json
 import os
 import pathlib
 import sys
+import time
 
 from mlsph_jax import config as config_mod
 from mlsph_jax import neighbors
@@ -63,12 +67,15 @@ def main(argv=None):
     ap.add_argument("--steady", action="store_true", help="steps to steady state with/without local time steps")
     ap.add_argument("--ratios", type=float, nargs="+", default=[4.0], help="time.local_step_ratio values")
     ap.add_argument("--steady-set", nargs="*", default=list(STEADY_STUDY), help="overrides of the steady study")
+    ap.add_argument("--set", nargs="*", default=[], dest="overrides", help="config overrides of the timed layouts")
     args = ap.parse_args(argv)
     rows = []
     steady = steady_study(args.steady_set, args.ratios) if args.steady else []
     for nt in args.n_theta:
-        cfg = load(nt)
+        cfg = load(nt, args.overrides)
+        t_setup = time.perf_counter()
         pb = build_problem(cfg)
+        setup_s = time.perf_counter() - t_setup
         p, params, scheme, walls = pb.particles, pb.params, pb.scheme, pb.boundary
         h = scheme.beta * p.vol ** 0.5
         _, nl = neighbors.allocate(p.x, h, pb.domain)
@@ -76,13 +83,14 @@ def main(argv=None):
         best, compile_s = time_interleaved(variants(walls, scheme), (p, params, geom), args.repeat)
         load_rhs = os.getloadavg()[0]
         dt = 1e-3 * 48 / nt     # about the CFL step at cfl 0.3 (fixed: the step count is exact)
-        run_cfg = load(nt, [f"time.dt={dt!r}", f"time.t_end={args.steps * dt!r}", "case.steady_tol=0",
+        run_cfg = load(nt, [*args.overrides, f"time.dt={dt!r}", f"time.t_end={args.steps * dt!r}", "case.steady_tol=0",
                             "output.snapshots=1", "time.local_time_stepping=false"])
         res = run_problem(build_problem(run_cfg), run_cfg, out_dir=None, quiet=True)
         s = res.summary
         run_s = s["wall_time_s"] - s["compile_time_s"]
         load_run = os.getloadavg()[0]
-        row = {"n_theta": nt, "n_particles": p.n, "n_wall_points": nt, "capacity": walls.capacity,
+        row = {"n_theta": nt, "overrides": args.overrides, "setup_s": setup_s,
+               "n_particles": p.n, "n_wall_points": nt, "capacity": walls.capacity,
                "best_s": best, "compile_s": compile_s, "wall_cost_ratio": best["walls"] / best["rhs"],
                "band_cost_ratio": best["band"] / best["rhs"], "run_steps": int(s["n_steps"]),
                "run_s": run_s, "run_compile_s": s["compile_time_s"], "dt_last": s["dt_last"],
@@ -90,7 +98,8 @@ def main(argv=None):
                "load_average_run": load_run}
         rows.append(row)
         tag = lambda v: f"load {v:.1f}" + (" (contended)" if v > 2.5 else "")  # noqa: E731
-        print(f"n_theta={nt} N={p.n} K_b={walls.capacity}: rhs {best['rhs'] * 1e3:.2f} ms, rhs+walls "
+        print(f"n_theta={nt} {' '.join(args.overrides)} N={p.n} K_b={walls.capacity} (set-up {setup_s:.1f} s):\n"
+              f"  rhs {best['rhs'] * 1e3:.2f} ms, rhs+walls "
               f"{best['rhs+walls'] * 1e3:.2f} ms, walls {best['walls'] * 1e3:.2f} ms ({row['wall_cost_ratio']:.2f} "
               f"of rhs), band check {best['band'] * 1e3:.2f} ms; {tag(load_rhs)}\n"
               f"  run: {row['run_steps']} steps in {run_s:.1f} s = {row['particle_steps_per_s']:.3g} particle-steps/s "

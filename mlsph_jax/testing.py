@@ -243,3 +243,32 @@ def time_interleaved(fns: Mapping, args: Sequence, repeat: int = 5) -> tuple[dic
             jax.block_until_ready(f(*args))
             best[k] = min(best[k], time.perf_counter() - t0)
     return best, compile_s
+
+
+def stream_particles(problem, cfg: Mapping, speed: float):
+    """A ``cylinder`` problem's particles holding its free stream with the velocity scaled by
+    ``speed`` (0: fluid at rest on the body's own velocity)."""
+    import jax.numpy as jnp
+
+    from .cases.cylinder import free_stream
+    from .eos import get_eos, to_conservative
+
+    p = problem.particles
+    rho, vel, pr = free_stream(cfg, np.asarray(p.x), problem.params)
+    U = to_conservative(jnp.asarray(rho), jnp.asarray(vel) * speed, jnp.asarray(pr), get_eos(problem.scheme.eos),
+                        problem.params)
+    return p.replace(q=p.vol[:, None] * U)
+
+
+def rhs_once(problem, p, boundary):
+    """One evaluation of the right-hand side of ``problem`` at particles ``p`` with ``boundary``
+    (None: no wall terms) on a fresh neighbour list."""
+    import jax
+
+    from . import neighbors
+    from .rhs import geometry, rhs
+
+    h = problem.scheme.beta * p.vol ** 0.5
+    _, nl = neighbors.allocate(p.x, h, problem.domain)
+    geom = geometry(p.x, p.vol, nl, problem.scheme, problem.domain)
+    return jax.jit(lambda p: rhs(p, problem.params, geom, problem.scheme, boundary))(p)

@@ -47,17 +47,13 @@ def test_polar_layout_bad_input(args, key):
 
 # --- the case: far field and body -------------------------------------------------------------
 
-import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 from mlsph_jax import config as config_mod  # noqa: E402
-from mlsph_jax import neighbors  # noqa: E402
 from mlsph_jax.cases import build_problem  # noqa: E402
 from mlsph_jax.cases.cylinder import free_stream  # noqa: E402
-from mlsph_jax.eos import get_eos, to_conservative  # noqa: E402
-from mlsph_jax.rhs import geometry, rhs  # noqa: E402
 from mlsph_jax.state import Kind  # noqa: E402
-from mlsph_jax.testing import CONFIG_DIR  # noqa: E402
+from mlsph_jax.testing import CONFIG_DIR, rhs_once, stream_particles  # noqa: E402
 
 SMALL = ("case.n_theta=32", "case.r_far=3.0", "output.plots=false", "output.progress=false")
 
@@ -68,19 +64,11 @@ def _problem(*overrides):
 
 
 def _with_velocity(pb, cfg, speed):
-    """The problem's particles with the free-stream state moving at ``speed`` along x."""
-    p = pb.particles
-    rho, vel, pr = free_stream(cfg, np.asarray(p.x), pb.params)
-    U = to_conservative(jnp.asarray(rho), jnp.asarray(vel) * speed, jnp.asarray(pr), get_eos(pb.scheme.eos),
-                        pb.params)
-    return p.replace(q=p.vol[:, None] * U)
+    return stream_particles(pb, cfg, speed)
 
 
 def _rhs(pb, p, boundary):
-    h = pb.scheme.beta * p.vol ** 0.5
-    _, nl = neighbors.allocate(p.x, h, pb.domain)
-    geom = geometry(p.x, p.vol, nl, pb.scheme, pb.domain)
-    return jax.jit(lambda p: rhs(p, pb.params, geom, pb.scheme, boundary))(p)
+    return rhs_once(pb, p, boundary)
 
 
 def test_uniform_stream_without_body_stays_uniform_and_far_field_is_frozen():

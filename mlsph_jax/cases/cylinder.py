@@ -9,6 +9,14 @@ pi / n_theta), volumes the annular-sector areas.  The thesis' setup (120 points 
 10,800 particles = 120 x 90 rings) is ``--set case.n_theta=120 case.r_far=40`` (86 fluid rings
 to r = 80 D and 4 far-field rings).
 
+Other layouts (``case.layout``, :mod:`mlsph_jax.cases.body_layouts`, decision 72): ``"cartesian"``,
+a uniform square lattice of spacing ``lattice_ratio`` x perimeter / ``n_theta`` over the disc of
+``r_far`` with the body cut out (no particle inside it or closer than h/2 to it), and ``"blend"``,
+the polar rings out to ``blend_radius`` with the lattice of the last ring's spacing beyond; their
+volumes are Voronoi cells clipped to the fluid, their far field is the lattice continued as frozen
+particles, and they do not follow the body's shape parameters (shape derivatives need the polar
+layout).  The body's quadrature keeps ``n_theta`` points on every layout.
+
 Body.  No-slip adiabatic wall by the boundary integral of thesis eq. 4.24
 (:mod:`mlsph_jax.wall_integral`, ``boundary_integral``; SPEC §5.8): a
 :class:`~mlsph_jax.geometry.Circle` named ``body`` with ``n_theta`` quadrature points, no ghosts.
@@ -127,8 +135,9 @@ from ..schema import Key, join_problems, show
 from ..simulation import Problem
 from ..state import Domain, Kind, Params, Particles, make_particles
 from .base import register_case
+from .body_layouts import BODY_LAYOUTS, check_outside, far_rings
 from .common import params_from_config, scheme_from_config, steady_tol_key
-from .layouts import elliptic_polar_layout, polar_layout, polar_ring_edges
+from .layouts import polar_ring_edges
 
 #: Free-stream density and speed (the scales of the coefficients).
 RHO_INF = 1.0
@@ -153,18 +162,9 @@ def _support_radius(cfg: Mapping, dx: float) -> float:
 
 
 def n_far_field_rings(cfg: Mapping) -> int:
-    """Frozen rings beyond ``r_far``: the fewest whose widths (the geometric sequence continued)
-    cover the support radius of the outermost fluid ring's particles, plus one."""
-    c = cfg["case"]
-    edges, q = polar_ring_edges(c["radius"], c["n_theta"], c["r_far"], names=_NAMES)
-    dtheta = 2.0 * math.pi / c["n_theta"]
-    last = math.sqrt(0.5 * (edges[-1] ** 2 - edges[-2] ** 2) * dtheta)
-    reach = _support_radius(cfg, last)
-    width, k = 0.0, 0
-    while width < reach:
-        k += 1
-        width += (edges[-1] - edges[-2]) * q ** k
-    return k + 1
+    """Frozen rings beyond ``r_far`` of the polar layout: the fewest whose widths (the geometric
+    sequence continued) cover the support radius of the outermost fluid ring's particles, plus one."""
+    return far_rings(cfg["case"], lambda dx: _support_radius(cfg, dx), _NAMES)
 
 
 def check_cylinder(cfg: dict) -> None:
@@ -176,7 +176,14 @@ def check_cylinder(cfg: dict) -> None:
     support radius kappa beta sqrt(V_0) (V_0 the volume of a first-ring particle); otherwise the
     body is too big for the layout and overlaps the far-field rings (the set-up also checks
     every wall stencil for frozen particles). A `physics.body_force` f must keep the hydrostatic
-    pressure ratio across the domain moderate: rho_inf |f| 2 `r_far` / p_inf <= 50."""
+    pressure ratio across the domain moderate: rho_inf |f| 2 `r_far` / p_inf <= 50. Lattice layouts
+    (`layout`, decision 72): `cartesian` needs n_theta / `lattice_ratio` >= 20 lattice spacings around
+    the body and `blend` a `blend_radius` beyond the body's first two rings and two lattice spacings
+    inside `r_far`; both need `r_far` beyond the body's extent plus h/2 plus the support radius of the
+    lattice spacing h plus h; `lattice_ratio` / `blend_radius` may only be set for the layout that uses
+    them. The set-up refuses a lattice whose particles next to the body are smaller than the body's
+    quadrature pieces (naming `lattice_ratio` or `n_theta`) and any layout leaving a fluid particle
+    inside the body."""
     c, phys = cfg["case"], cfg["physics"]
     problems = []
     if cfg["eos"]["kind"] != "ideal_gas":
@@ -206,6 +213,7 @@ def check_cylinder(cfg: dict) -> None:
                             f"case.n_theta={c['n_theta']}: the far-field rings start inside the support of the "
                             f"body's wall points (out to r = {need:.4g}), the body is too big for the layout; "
                             f"allowed: case.r_far > {need:.4g} (or a smaller case.radius)")
+    problems += layout_problems(cfg)
     if c["body"] == "circle" and (c["aspect"] != 1.0 or c["alpha"] != 0.0):
         problems.append(f"invalid case.aspect={show(c['aspect'])} / case.alpha={show(c['alpha'])} with "
                         "case.body=\"circle\": a circle has aspect 1 and no angle of attack; allowed: "
@@ -239,6 +247,20 @@ def check_cylinder(cfg: dict) -> None:
         raise ConfigError(join_problems(problems))
 
 
+def layout_problems(cfg: Mapping) -> list[str]:
+    """The layout's own checks (:data:`~mlsph_jax.cases.body_layouts.BODY_LAYOUTS`), and no
+    lattice key set for a layout that does not use it (nothing silently ignored)."""
+    c = cfg["case"]
+    used = {"lattice_ratio": ("cartesian",), "blend_radius": ("blend",)}
+    problems = [f"invalid case.{k}={show(c[k])} with case.layout={show(c['layout'])}: it is used by case.layout="
+                f"{' / '.join(map(show, lays))} only; allowed: the default {show(CYLINDER_KEYS[k].default)} or "
+                f"case.layout={show(lays[0])}"
+                for k, lays in used.items() if c["layout"] not in lays and c[k] != CYLINDER_KEYS[k].default]
+    if problems:
+        return problems
+    return BODY_LAYOUTS.get(c["layout"], "case.layout").check(c, lambda dx: _support_radius(cfg, dx))
+
+
 CYLINDER_KEYS: dict[str, Key] = {
     "radius": Key(float, 0.5, minimum=0.0, exclusive_minimum=True, unit="m",
                   doc="cylinder radius R (D = 2R; thesis: 0.5)"),
@@ -253,6 +275,20 @@ CYLINDER_KEYS: dict[str, Key] = {
     "r_far": Key(float, 40.0, minimum=0.0, exclusive_minimum=True, unit="m",
                  doc="outer radius of the fluid region (frozen free-stream rings beyond it); "
                      "thesis setup: 40 with n_theta = 120 (10,800 particles)"),
+    "layout": Key(str, "polar", choices=BODY_LAYOUTS.names,
+                  doc="particles around the body (docs/architecture.md decision 72): \"polar\" body-fitted rings "
+                      "with geometric growth (decisions 58, 65); \"cartesian\" a uniform square lattice of spacing "
+                      "case.lattice_ratio x perimeter / case.n_theta with the body cut out; \"blend\" the polar "
+                      "rings out to case.blend_radius and the lattice of the last ring's spacing beyond; lattice "
+                      "volumes are Voronoi cells clipped to the fluid; shape derivatives need \"polar\""),
+    "lattice_ratio": Key(float, 1.0, minimum=0.0, exclusive_minimum=True,
+                         doc="case.layout = \"cartesian\" only: lattice spacing h over the body's quadrature "
+                             "spacing (perimeter / case.n_theta); n_theta / lattice_ratio >= 20 spacings around the "
+                             "body, and the quadrature may not be sparser than the particles next to the body"),
+    "blend_radius": Key(float, 2.0, minimum=0.0, exclusive_minimum=True, unit="m",
+                        doc="case.layout = \"blend\" only: outer radius of the polar rings (the lattice beyond has "
+                            "the last ring's spacing sqrt(V)); between the body's second ring and case.r_far less "
+                            "two lattice spacings"),
     "body": Key(str, "circle", choices=BODIES,
                 doc="the body: a circle of case.radius, or an ellipse of the same area (equal-area radius "
                     "case.radius, aspect ratio case.aspect, angle of attack case.alpha) on the conformally "
@@ -353,14 +389,6 @@ def body_curve(cfg: Mapping):
     return Circle(BODY, centre=(0.0, 0.0), radius=float(c["radius"]), n_points=c["n_theta"])
 
 
-def body_layout(body, edges, n_theta: int, params):
-    """``(x[N, 2], vol[N])`` of the body-fitted layout for the body's parameters in ``params``
-    (jnp, differentiable in every ``geometry.body.*`` shape parameter: centre, radius, aspect,
-    angle of attack; :func:`~mlsph_jax.cases.layouts.elliptic_polar_layout`)."""
-    semi_axes, angle = body._axes(params)
-    return elliptic_polar_layout(edges, n_theta, params[body.key("centre")], semi_axes, angle)
-
-
 def build(cfg: Mapping) -> Problem:
     cfg = run_config(cfg)
     c = cfg["case"]
@@ -368,19 +396,19 @@ def build(cfg: Mapping) -> Problem:
     params = params_from_config(cfg)
     eos = get_eos(scheme.eos)
     R, n_theta = c["radius"], c["n_theta"]
-    n_frozen = n_far_field_rings(cfg)
-    lay = polar_layout(R, n_theta, c["r_far"], n_frozen, names=_NAMES)
-    n_fluid_rings = len(lay.edges) - 1 - n_frozen
-    kind = np.where(lay.ring < n_fluid_rings, int(Kind.FLUID), int(Kind.FROZEN))
     body = body_curve(cfg)
     # the body's geometry parameters live in the Params (differentiable, `mlsph sensitivity --wrt`)
     params = params.updated({k: jnp.asarray(v, jnp.float64) for k, v in body.defaults().items()})
-    x, vol = (np.asarray(a) for a in body_layout(body, lay.edges, n_theta, params))
+    lay = BODY_LAYOUTS.get(c["layout"], "case.layout").build(c, body, params, lambda dx: _support_radius(cfg, dx),
+                                                             _NAMES)
+    x, vol, kind = lay.x, lay.vol, lay.kind
+    check_outside(x, kind, body, params, c["layout"])
     rho, vel, p = initial_state(cfg, x, params)
     vel = np.where((kind == int(Kind.FLUID))[:, None], vel, free_stream(cfg, x, params)[1])
     U = to_conservative(jnp.asarray(rho), jnp.asarray(vel), jnp.asarray(p), eos, params)
     pf = make_particles(x, vol, U, kind=kind, ppd=np.full(len(x), scheme.reconstruction_degree))
-    half = float(np.max(np.abs(x))) * 1.01 if c["body"] == "ellipse" else float(lay.edges[-1]) * 1.01
+    polar_circle = c["layout"] == "polar" and c["body"] == "circle"
+    half = (lay.bound if polar_circle else float(np.max(np.abs(x)))) * 1.01
     domain = Domain((-half, -half), (half, half), (False, False))
     band = R * 2.0 * math.pi / n_theta
     particles, walls = BOUNDARIES.get("boundary_integral").setup(pf, [], band, params, scheme.eos, scheme=scheme,
@@ -396,7 +424,7 @@ def build(cfg: Mapping) -> Problem:
         (neighbour lists, sized from ``problem.particles``) is not re-planned: for the small
         changes of a gradient or an optimisation step at fixed aspect (a rotation keeps every
         pair distance) it stays valid (decision 65)."""
-        xj, vj = body_layout(body, lay.edges, n_theta, P)
+        xj, vj = lay.positions_at(P)
         r_, v_, p_ = initial_state(cfg, xj, P, xp=jnp)
         v_ = jnp.where((particles.kind == int(Kind.FLUID))[:, None], v_, free_stream(cfg, xj, P, xp=jnp)[1])
         Uj = to_conservative(r_, v_, p_, eos, P)
@@ -419,7 +447,11 @@ def build(cfg: Mapping) -> Problem:
 
     def metrics(p: Particles, t: float, P) -> dict[str, float]:
         out = diagnostics(p, t, P)
-        if c["body"] == "circle":
+        if c["layout"] != "polar":
+            if c["body"] == "circle" or float(P[body.key("alpha")]) == 0.0:
+                base = float(body._axes(P)[0][0]) + float(P[body.key("centre")][0])
+                out["recirculation_length"] = axis_recirculation_length(p, P, scheme, base, 2.0 * R, lay.h)
+        elif c["body"] == "circle":
             out["recirculation_length"] = recirculation_length(p, P, scheme, R, n_theta)
         elif float(P[body.key("alpha")]) == 0.0:   # at incidence the wake leaves off the layout's rays
             a = float(body._axes(P)[0][0]) + float(P[body.key("centre")][0])
@@ -473,7 +505,8 @@ CYLINDER = register_case(
     "cylinder", CYLINDER_KEYS, build, check=check_cylinder, dim=2,
     defaults_override={"eos.kind": "ideal_gas", "eos.gamma": 1.4, "time.t_end": 30.0, "output.snapshots": 15},
     doc="Flow past a circular cylinder (thesis §4.5.2): a cylinder of radius `radius` in a free stream "
-        "at Reynolds number `re` and Mach number `mach`, body-fitted polar layout, no-slip body by the "
+        "at Reynolds number `re` and Mach number `mach`, body-fitted polar layout (or a Cartesian lattice with the "
+        "body cut out, or a blend of the two), no-slip body by the "
         "boundary integral of thesis eq. 4.24, frozen free-stream far field beyond `r_far`; drag, lift "
         "and pressure coefficients against thesis Table 4.1.")
 
@@ -483,6 +516,8 @@ def _title(cfg, n: int, t: float | None = None) -> str:
     when = f", t={t:.4g}" if t is not None else ""
     if c["body"] == "ellipse":
         when += f", ellipse A={c['aspect']:g}, alpha={c['alpha']:g} deg"
+    if c["layout"] != "polar":
+        when += f", {c['layout']} layout"
     return (f"cylinder (Re={c['re']:g}, M={c['mach']:g}, {c['n_theta']} on the body, {n} particles{when}): "
             f"{s['method']}, reconstruction degree {s['reconstruction_degree']}")
 
@@ -542,6 +577,31 @@ def recirculation_length(p: Particles, P, scheme, radius: float, n_theta: int, b
     k = int(ahead[0])
     x0 = xa[k - 1] + (xa[k] - xa[k - 1]) * (-ua[k - 1]) / (ua[k] - ua[k - 1])
     return float((x0 - radius) / D)
+
+
+def axis_recirculation_length(p: Particles, P, scheme, base: float, D: float, h: float) -> float:
+    """L_w / D on a lattice layout (no particle rays on the axis): u_x of the fluid particles
+    interpolated linearly (Delaunay, ``scipy.interpolate.LinearNDInterpolator``) at points h / 4
+    apart on the wake axis y = 0 from the body's rear point x = ``base``; the first point where u_x
+    turns positive again behind the first that flows back (0 when nothing flows back)."""
+    from scipy.interpolate import LinearNDInterpolator
+
+    fluid = np.asarray(p.kind) == int(Kind.FLUID)
+    x = np.asarray(p.x)[fluid]
+    u = np.asarray(to_primitive(p.U, get_eos(scheme.eos), P).vel)[fluid, 0]
+    xs = base + 0.25 * h * np.arange(1, int((np.max(x[:, 0]) - base) / (0.25 * h)))
+    ua = LinearNDInterpolator(x, u)(np.stack([xs, np.zeros_like(xs)], axis=1))
+    ok = np.isfinite(ua)
+    xs, ua = xs[ok], ua[ok]
+    back = np.flatnonzero(ua < 0.0)
+    if back.size == 0:
+        return 0.0
+    ahead = np.flatnonzero((ua >= 0.0) & (np.arange(len(ua)) > back[0]))
+    if ahead.size == 0:
+        return float((xs[-1] - base) / D)
+    k = int(ahead[0])
+    x0 = xs[k - 1] + (xs[k] - xs[k - 1]) * (-ua[k - 1]) / (ua[k] - ua[k - 1])
+    return float((x0 - base) / D)
 
 
 def plot_cp(path: Path, theta, cp, title: str = "") -> None:

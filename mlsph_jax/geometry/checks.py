@@ -125,14 +125,18 @@ def check_geometry(curves, params: Params, x, vol, kind=None, domain=None, max_s
     _check_spacing(curves, params, xf, vf, max_spacing_ratio)
 
 
-def _check_spacing(curves, params, xf, vf, ratio_max):
+def spacing_ratio(curve, params, xf, vf) -> float:
+    """The largest dGamma_b / V^(1/d) of the fluid particle nearest to x_b over the curve's
+    quadrature points (the quadrature resolves the particles when it is <= 1)."""
     d = xf.shape[1]
+    xb, dg = (np.asarray(a) for a in curve.points(params)[:2])
+    r2 = np.sum((xb[:, None, :] - xf[None]) ** 2, axis=-1)
+    return float((dg / vf[np.argmin(r2, axis=1)] ** (1.0 / d)).max())
+
+
+def _check_spacing(curves, params, xf, vf, ratio_max):
     for c in curves:
-        xb, dg = (np.asarray(a) for a in c.points(params)[:2])
-        r2 = np.sum((xb[:, None, :] - xf[None]) ** 2, axis=-1)
-        spacing = vf[np.argmin(r2, axis=1)] ** (1.0 / d)
-        ratio = dg / spacing
-        worst = float(ratio.max())
+        worst = spacing_ratio(c, params, xf, vf)
         if worst > ratio_max * (1 + 1e-9):
             if hasattr(c, "spacing"):
                 raise InputError(f"invalid geometry.{c.name}.spacing={c.spacing!r}: quadrature pieces up to "

@@ -1,0 +1,394 @@
+"""Layouts of the fluid around a body in a stream: the ``cylinder`` case's ``case.layout``
+(registry :data:`BODY_LAYOUTS`; docs/architecture.md decision 72; issue 17 item 4).
+
+* ``"polar"`` (default): the body-fitted polar (O-grid) layout of
+  :func:`~mlsph_jax.cases.layouts.polar_layout`, carried onto an elliptic body by the conformal
+  map of :func:`~mlsph_jax.cases.layouts.elliptic_polar_layout` (decision 65); volumes the
+  (mapped) annular-sector areas; the particles follow the body's parameters.
+* ``"cartesian"``: a uniform square lattice x = ((i + 1/2) h, (j + 1/2) h) (mirror-symmetric about
+  both axes) over the disc |x| < ``r_far``, h = ``case.lattice_ratio`` times the body's quadrature
+  spacing (its perimeter / ``case.n_theta``).  Lattice points inside the body or closer than
+  :data:`GAP` h to its curve are removed (the cut-out works for any closed curve: it uses the
+  curve's polygon of :data:`FINE` x ``n_theta`` vertices, not a formula of the circle).
+* ``"blend"``: the polar rings out to ``case.blend_radius`` (its ring edges end there exactly),
+  the same square lattice beyond, with h the particle spacing sqrt(V) of the outermost ring (so
+  the ring spacing matches the lattice spacing at the blend radius); lattice points inside the
+  outer ring's edge or closer than :data:`GAP` h to a ring particle are removed.
+
+Lattice layouts: beyond ``r_far`` the lattice continues as FROZEN far-field particles
+(:class:`~mlsph_jax.state.Kind`) out to the support radius of the outermost fluid particle plus
+one spacing (as the polar layout's frozen rings).  Volumes are consistent with the layout: the
+Voronoi cell of each fluid particle among all particles (:class:`scipy.spatial.Voronoi`),
+clipped to the fluid side of the body (cell area minus the area of the body polygon clipped to
+the convex cell, Sutherland-Hodgman).  The fluid cells partition the region between the body
+and the lattice squares of the lattice points inside ``r_far`` (a staircase of the disc), so
+the fluid volumes sum to N_disc h^2 - area(body), N_disc the lattice points with |x| < r_far
+(those removed included), to the accuracy of the body polygon (tests/test_body_layouts.py).
+Frozen particles get h^2.
+
+Shape derivatives: the lattice is cut once at set-up, so its particle set and the Voronoi
+volumes change discontinuously with the body; the lattice layouts do not follow the body's
+parameters, and differentiating with respect to ``geometry.body.{centre, radius, aspect}`` on
+them is refused (:class:`~mlsph_jax.errors.InputError` at trace time).  The angle of attack
+``geometry.body.alpha`` turns the free stream, not the body, and stays differentiable.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Mapping
+from typing import NamedTuple
+
+import jax
+import numpy as np
+from scipy.spatial import Voronoi, cKDTree
+
+from ..errors import InputError
+from ..geometry.checks import inside_polygon, spacing_ratio
+from ..registry import Registry
+from ..state import Kind
+from .layouts import elliptic_polar_layout, polar_layout, polar_ring_edges
+
+#: Lattice points closer than GAP h to the body's curve (cartesian) or to a ring particle (blend)
+#: are removed: no two particles are closer than GAP h (the polar layout's first ring sits h/2
+#: from the wall).
+GAP = 0.5
+#: The body polygon used for the cut-out and the clipping has FINE x n_theta vertices.
+FINE = 16
+#: Fewest lattice spacings around the body's perimeter (n_theta / lattice_ratio).
+MIN_SPACINGS_AROUND = 20
+#: Parameters a lattice layout cannot follow (shape derivatives refused).
+SHAPE_FIELDS = ("centre", "radius", "aspect")
+
+#: Layouts around a body (the ``cylinder`` case's ``case.layout``; the kind is a label, since other
+#: cases' ``case.layout`` keys name their own, unregistered, layouts).
+BODY_LAYOUTS: Registry = Registry("body_layout", protocol=("check", "build"),
+                                  doc="particle layouts around a body in a stream (the cylinder's case.layout)")
+
+
+class BodyLayout(NamedTuple):
+    """A layout's result: ``x[N, 2]``, ``vol[N]``, ``kind[N]`` (FLUID or FROZEN), the lattice
+    spacing ``h`` (nan for the polar layout), ``positions_at(params) -> (x, vol)`` (jnp) when
+    the layout follows the body's parameters, else the set-up particles with shape derivatives
+    refused, and ``bound``, the outermost ring edge of the polar layout (nan for the others)."""
+
+    x: np.ndarray
+    vol: np.ndarray
+    kind: np.ndarray
+    h: float
+    positions_at: Callable
+    bound: float = float("nan")
+
+
+# --- geometry ---------------------------------------------------------------------------------
+
+def body_polygon(body, params) -> np.ndarray:
+    """The closed body curve as a polygon of :data:`FINE` x ``n_points`` vertices (counter-
+    clockwise for the built-in curves)."""
+    fine = dataclasses.replace(body, n_points=FINE * body.n_points)
+    return np.asarray(fine.points(params)[0], float)
+
+
+def polygon_area(poly: np.ndarray) -> float:
+    """Shoelace area (positive for counter-clockwise vertices)."""
+    x, y = poly[:, 0], poly[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+
+
+def distance_to_polygon(x: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Distance of each point ``x[N, 2]`` to the closed polygon's edges."""
+    a, b = poly, np.roll(poly, -1, axis=0)
+    d = b - a
+    t = np.clip(np.einsum("nmk,mk->nm", x[:, None] - a[None], d) / np.sum(d * d, axis=1), 0.0, 1.0)
+    closest = a[None] + t[..., None] * d[None]
+    return np.sqrt(np.min(np.sum((x[:, None] - closest) ** 2, axis=-1), axis=1))
+
+
+def clip_to_convex(subject: np.ndarray, convex: np.ndarray) -> np.ndarray:
+    """Sutherland-Hodgman: the part of polygon ``subject`` inside the convex counter-clockwise
+    polygon ``convex`` (``subject`` may be non-convex: the area of the result is exact)."""
+    out = subject
+    for a, b in zip(convex, np.roll(convex, -1, axis=0), strict=True):
+        if len(out) == 0:
+            break
+        e = b - a
+        side = e[0] * (out[:, 1] - a[1]) - e[1] * (out[:, 0] - a[0])      # >= 0: inside
+        nxt, s_nxt = np.roll(out, -1, axis=0), np.roll(side, -1)
+        keep = side >= 0.0
+        cross = (side >= 0.0) != (s_nxt >= 0.0)
+        t = side / np.where(cross, side - s_nxt, 1.0)
+        hit = out + t[:, None] * (nxt - out)
+        pts = np.stack([out, hit], axis=1)                       # per vertex: itself, then a crossing
+        use = np.stack([keep, cross], axis=1)
+        out = pts[use]
+    return out
+
+
+def square_lattice(h: float, reach: float) -> np.ndarray:
+    """Points ((i + 1/2) h, (j + 1/2) h) with |x| < ``reach`` (mirror-symmetric about both axes)."""
+    n = int(math.ceil(reach / h))
+    c = (np.arange(-n, n) + 0.5) * h
+    X, Y = np.meshgrid(c, c, indexing="xy")
+    pts = np.stack([X.ravel(), Y.ravel()], axis=1)
+    return pts[np.hypot(pts[:, 0], pts[:, 1]) < reach]
+
+
+def voronoi_volumes(points: np.ndarray, n_fluid: int, body: np.ndarray) -> np.ndarray:
+    """Areas of the Voronoi cells of the first ``n_fluid`` of ``points`` (every one must be
+    bounded, i.e. surrounded by the others), minus their overlap with the ``body`` polygon."""
+    vor = Voronoi(points)
+    centre = body.mean(axis=0)
+    reach = float(np.max(np.hypot(*(body - centre).T)))
+    vol = np.empty(n_fluid)
+    for i in range(n_fluid):       # set-up only; a Voronoi region has a variable vertex count
+        region = vor.regions[vor.point_region[i]]
+        if -1 in region or not region:
+            raise InputError(f"invalid lattice layout: the Voronoi cell of fluid particle {i} at "
+                             f"x={np.round(points[i], 6).tolist()} is unbounded; allowed: fluid particles "
+                             "surrounded by far-field particles")
+        cell = vor.vertices[region]
+        if polygon_area(cell) < 0.0:
+            cell = cell[::-1]
+        area = polygon_area(cell)
+        # the cell can overlap the body only if it reaches into the body's circumscribed circle
+        if inside_polygon(centre[None], cell)[0] or distance_to_polygon(centre[None], cell)[0] < reach:
+            cut = clip_to_convex(body, cell)
+            area -= abs(polygon_area(cut)) if len(cut) else 0.0
+        vol[i] = area
+    return vol
+
+
+# --- the layouts ------------------------------------------------------------------------------
+
+def _body_extent(body, params) -> float:
+    poly = np.asarray(body.points(params)[0], float)
+    return float(np.max(np.hypot(poly[:, 0], poly[:, 1])))
+
+
+def _perimeter(body, params) -> float:
+    return float(np.sum(np.asarray(body.points(params)[1])))
+
+
+def _fixed_positions(x, vol, body, layout: str):
+    """``positions_at`` of a lattice layout: the set-up particles for any parameters; a traced
+    shape parameter (a shape derivative) is refused."""
+    def positions_at(P):
+        moving = [k for k in (body.key(f) for f in SHAPE_FIELDS) if k in P and isinstance(P[k], jax.core.Tracer)]
+        if moving:
+            raise InputError(f"invalid derivative with respect to {', '.join(moving)} with case.layout=\"{layout}\": "
+                             "the lattice is cut out around the body once at set-up (its particle set and "
+                             "Voronoi volumes change discontinuously with the body), so it cannot follow the "
+                             "shape; allowed: case.layout=\"polar\" for shape derivatives (geometry.body.alpha "
+                             "turns the stream and stays differentiable)")
+        return x, vol
+    return positions_at
+
+
+def _frozen_lattice(pts, r_out, reach):
+    r = np.hypot(pts[:, 0], pts[:, 1])
+    return pts[(r >= r_out) & (r < r_out + reach)]
+
+
+def check_outside(x, kind, body, params, layout: str) -> None:
+    """No fluid particle of a layout may lie inside the body (its polygon of :data:`FINE` x
+    ``n_points`` vertices): InputError naming ``case.layout``."""
+    fluid = np.flatnonzero(np.asarray(kind) == int(Kind.FLUID))
+    inside = inside_polygon(np.asarray(x)[fluid], body_polygon(body, params))
+    if inside.any():
+        i = int(fluid[np.argmax(inside)])
+        raise InputError(f"invalid case.layout={layout!r}: fluid particle {i} at x={np.round(x[i], 6).tolist()} is "
+                         f"inside the body geometry.{body.name} ({int(inside.sum())} particles); allowed: a layout "
+                         "whose fluid particles all lie outside the body")
+
+
+def _finish(fluid, frozen, h, body, params, what, case_value):
+    """The layout of fluid and frozen lattice/ring points with Voronoi volumes clipped to the body."""
+    poly = body_polygon(body, params)
+    pts = np.concatenate([fluid, frozen])
+    vf = voronoi_volumes(pts, len(fluid), poly)
+    worst = spacing_ratio(body, params, fluid, vf)
+    if worst > 1.0 + 1e-9:
+        # sqrt(V) next to the body scales with the lattice spacing (cartesian) or with 1 / n_theta (blend)
+        allowed = (f"case.lattice_ratio >= {case_value * worst:.4g}" if what == "cartesian" else
+                   "a larger case.n_theta or case.layout=\"polar\"")
+        key = "case.lattice_ratio" if what == "cartesian" else "case.n_theta"
+        raise InputError(f"invalid {key}={case_value!r} with case.layout={what!r} (case.n_theta={body.n_points}): "
+                         f"the body's quadrature pieces are up to {worst:.3g} spacings sqrt(V) of the nearest "
+                         f"particle long, too sparse for the particles (geometry.checks.spacing_ratio); allowed: at "
+                         f"most 1 spacing, {allowed}")
+    vol = np.concatenate([vf, np.full(len(frozen), h * h)])
+    kind = np.concatenate([np.full(len(fluid), int(Kind.FLUID)), np.full(len(frozen), int(Kind.FROZEN))])
+    return pts, vol, kind
+
+
+class Polar:
+    """Body-fitted polar rings with geometric growth (decisions 58, 65), frozen rings beyond
+    ``r_far``; the layout follows the body's shape parameters."""
+
+    @staticmethod
+    def check(case: Mapping, support: Callable[[float], float]) -> list[str]:
+        return []
+
+    @staticmethod
+    def build(case: Mapping, body, params, support, names) -> BodyLayout:
+        n_theta = case["n_theta"]
+        lay = polar_layout(case["radius"], n_theta, case["r_far"], far_rings(case, support, names), names=names)
+        n_fluid = len(polar_ring_edges(case["radius"], n_theta, case["r_far"], names=names)[0]) - 1
+        kind = np.where(lay.ring < n_fluid, int(Kind.FLUID), int(Kind.FROZEN))
+
+        def positions_at(P):
+            semi_axes, angle = body._axes(P)
+            return elliptic_polar_layout(lay.edges, n_theta, P[body.key("centre")], semi_axes, angle)
+        x, vol = (np.asarray(a) for a in positions_at(params))
+        return BodyLayout(x, vol, kind, float("nan"), positions_at, float(lay.edges[-1]))
+
+
+def far_rings(case: Mapping, support: Callable[[float], float], names) -> int:
+    """Frozen rings beyond ``r_far`` of the polar layout: the fewest whose widths (the geometric
+    sequence continued) cover the support radius of the outermost fluid ring's particles, plus one."""
+    edges, q = polar_ring_edges(case["radius"], case["n_theta"], case["r_far"], names=names)
+    dtheta = 2.0 * math.pi / case["n_theta"]
+    reach = support(math.sqrt(0.5 * (edges[-1] ** 2 - edges[-2] ** 2) * dtheta))
+    width, k = 0.0, 0
+    while width < reach:
+        k += 1
+        width += (edges[-1] - edges[-2]) * q ** k
+    return k + 1
+
+
+def _extent(case: Mapping) -> float:
+    """Largest distance of the body's curve from its centre (an ellipse: its semi-major axis)."""
+    return case["radius"] * (math.sqrt(max(case["aspect"], 1.0 / case["aspect"])) if case["body"] == "ellipse"
+                             else 1.0)
+
+
+def _perimeter_estimate(case: Mapping) -> float:
+    """The body's perimeter (Ramanujan's approximation for the ellipse; config checks only)."""
+    R = case["radius"]
+    if case["body"] != "ellipse":
+        return 2.0 * math.pi * R
+    a, b = R * math.sqrt(case["aspect"]), R / math.sqrt(case["aspect"])
+    return math.pi * (3.0 * (a + b) - math.sqrt((3.0 * a + b) * (a + 3.0 * b)))
+
+
+def lattice_spacing(case: Mapping) -> float:
+    """h of the ``cartesian`` layout: ``lattice_ratio`` x perimeter / ``n_theta``."""
+    return case["lattice_ratio"] * _perimeter_estimate(case) / case["n_theta"]
+
+
+def blend_edges(case: Mapping) -> np.ndarray:
+    """Ring edges R q^k, k = 0..n, of the ``blend`` layout, ending at ``blend_radius``: as
+    :func:`~mlsph_jax.cases.layouts.polar_ring_edges` but with n rounded down (cells at least as
+    long radially as they are wide, q >= 1 + 2 pi / n_theta), so that the first ring's particles
+    are never smaller than the body's quadrature pieces; at least two rings."""
+    R, rb = case["radius"], case["blend_radius"]
+    n = max(2, math.floor(math.log(rb / R) / math.log1p(2.0 * math.pi / case["n_theta"]) + 1e-9))
+    return R * (rb / R) ** (np.arange(n + 1) / n)
+
+
+def blend_spacing(case: Mapping) -> float:
+    """h of the ``blend`` layout: sqrt(V) of the outermost ring's particles of the circle's rings
+    ending at ``blend_radius`` (an ellipse's mapped rings are scaled by (a + b) / 2R)."""
+    edges = blend_edges(case)
+    s = 1.0
+    if case["body"] == "ellipse":
+        s = 0.5 * (math.sqrt(case["aspect"]) + 1.0 / math.sqrt(case["aspect"]))
+    return s * math.sqrt(0.5 * (edges[-1] ** 2 - edges[-2] ** 2) * 2.0 * math.pi / case["n_theta"])
+
+
+def _far_problems(case, h, support) -> list[str]:
+    need = _extent(case) + GAP * h + support(h) + h
+    if case["r_far"] <= need:
+        return [f"invalid case.r_far={case['r_far']!r} with case.layout={case['layout']!r} (lattice spacing "
+                f"{h:.4g}): the far field starts inside the support of the body's wall points (out to r = "
+                f"{need:.4g}); allowed: case.r_far > {need:.4g}"]
+    return []
+
+
+class Cartesian:
+    """A uniform square lattice with the body cut out (module docstring), Voronoi volumes."""
+
+    @staticmethod
+    def check(case: Mapping, support: Callable[[float], float]) -> list[str]:
+        if case["n_theta"] / case["lattice_ratio"] < MIN_SPACINGS_AROUND:
+            return [f"invalid case.lattice_ratio={case['lattice_ratio']!r} with case.n_theta={case['n_theta']}: "
+                    f"{case['n_theta'] / case['lattice_ratio']:.3g} lattice spacings around the body, too coarse "
+                    f"for it; allowed: case.n_theta / case.lattice_ratio >= {MIN_SPACINGS_AROUND} (lattice_ratio "
+                    f"<= {case['n_theta'] / MIN_SPACINGS_AROUND:.4g})"]
+        return _far_problems(case, lattice_spacing(case), support)
+
+    @staticmethod
+    def build(case: Mapping, body, params, support, names) -> BodyLayout:
+        h = case["lattice_ratio"] * _perimeter(body, params) / case["n_theta"]
+        r_far, reach = case["r_far"], support(h) + h
+        pts = square_lattice(h, r_far + reach)
+        r = np.hypot(pts[:, 0], pts[:, 1])
+        cand = pts[r < r_far]
+        poly = body_polygon(body, params)
+        out = ~inside_polygon(cand, poly)
+        near = np.hypot(cand[:, 0], cand[:, 1]) < _body_extent(body, params) + 2.0 * h
+        keep = out.copy()
+        keep[near] &= distance_to_polygon(cand[near], poly) >= GAP * h
+        x, vol, kind = _finish(cand[keep], _frozen_lattice(pts, r_far, reach), h, body, params, "cartesian",
+                                case["lattice_ratio"])
+        return BodyLayout(x, vol, kind, h, _fixed_positions(x, vol, body, "cartesian"))
+
+
+class Blend:
+    """Polar rings out to ``blend_radius``, the square lattice of the outermost ring's spacing
+    beyond (module docstring), Voronoi volumes."""
+
+    @staticmethod
+    def check(case: Mapping, support: Callable[[float], float]) -> list[str]:
+        rb, R, n = case["blend_radius"], case["radius"], case["n_theta"]
+        inner = _extent(case) * (1.0 + 2.0 * math.pi / n) ** 2
+        if rb <= inner:
+            return [f"invalid case.blend_radius={rb!r} with case.radius={R!r} and case.n_theta={n}: at or inside "
+                    f"the body's first two rings (r = {inner:.4g}); allowed: case.blend_radius > {inner:.4g}"]
+        h = blend_spacing(case)
+        outer = case["r_far"] - 2.0 * h
+        if rb >= outer:
+            return [f"invalid case.blend_radius={rb!r} with case.r_far={case['r_far']!r}: at or outside the far "
+                    f"field less two lattice spacings ({h:.4g} each); allowed: case.blend_radius < {outer:.4g}"]
+        return _far_problems(case, h, support)
+
+    @staticmethod
+    def build(case: Mapping, body, params, support, names) -> BodyLayout:
+        n_theta, edges = case["n_theta"], blend_edges(case)
+        semi_axes, angle = body._axes(params)
+        x_r, v_r = (np.asarray(a) for a in elliptic_polar_layout(edges, n_theta, params[body.key("centre")],
+                                                                  semi_axes, angle))
+        h = float(np.sqrt(np.mean(v_r[-n_theta:])))
+        r_far, reach = case["r_far"], support(h) + h
+        pts = square_lattice(h, r_far + reach)
+        cand = pts[np.hypot(pts[:, 0], pts[:, 1]) < r_far]
+        # the outer edge of the rings (the mapped circle at the last edge) as a polygon
+        ring_edge = _mapped_circle(edges[-1], edges[0], FINE * n_theta, params[body.key("centre")],
+                                   np.asarray(semi_axes, float), float(angle))
+        keep = ~inside_polygon(cand, ring_edge)
+        d, _ = cKDTree(x_r).query(cand[keep])
+        keep[np.flatnonzero(keep)[d < GAP * h]] = False
+        fluid = np.concatenate([x_r, cand[keep]])
+        x, vol, kind = _finish(fluid, _frozen_lattice(pts, r_far, reach), h, body, params, "blend",
+                                case["n_theta"])
+        return BodyLayout(x, vol, kind, h, _fixed_positions(x, vol, body, "blend"))
+
+
+def _mapped_circle(r, r0, n, centre, semi_axes, angle):
+    """The circle of radius ``r`` of the polar layout (body radius ``r0``) carried by the Joukowski
+    map of :func:`~mlsph_jax.cases.layouts.elliptic_polar_layout`, turned by ``angle`` (the
+    identity for a circle)."""
+    a, b = semi_axes
+    rho = 0.5 * (a + b) / r0 * r
+    c2 = 0.25 * (a - b) * (a + b)
+    t = 2.0 * math.pi * np.arange(n) / n
+    zx, zy = (rho + c2 / rho) * np.cos(t), (rho - c2 / rho) * np.sin(t)
+    ca, sa = math.cos(angle), math.sin(angle)
+    c = np.asarray(centre, float)
+    return np.stack([c[0] + ca * zx - sa * zy, c[1] + sa * zx + ca * zy], axis=1)
+
+
+BODY_LAYOUTS.register("polar", Polar())
+BODY_LAYOUTS.register("cartesian", Cartesian())
+BODY_LAYOUTS.register("blend", Blend())
