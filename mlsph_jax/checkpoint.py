@@ -7,12 +7,13 @@ at every output time, when it is interrupted and when it fails: the scan carry (
 ``x, vol, q, kind, ppd``, time, step count, last ``dt``, MOOD statistics, the last step's
 approximation degrees and the reduced-degree statistics), the neighbour spec
 the run has grown to, the particles the Eulerian geometry was computed from, the diagnostics
-time series so far, the steady-state test's previous velocities, the index of the next output
-time, the driver settings and the resolved configuration.  The file is replaced atomically
+time series so far (sampled at the output times or at the finer ``output.series_interval``), the
+steady-state test's previous velocities, the index of the next step target (a sample or output
+time), the driver settings and the resolved configuration.  The file is replaced atomically
 (written to a temporary file, then renamed): a kill leaves the previous checkpoint intact.
 
 Every step of the driver is a function of the carry alone (the step size is the CFL step of the
-carried state, clipped to the next output time), so a run resumed from a checkpoint
+carried state, clipped to the next sample or output time), so a run resumed from a checkpoint
 (:meth:`Simulation.run` with ``restart=True``, ``mlsph run --restart DIR``) reproduces the
 uninterrupted run bit for bit, whatever chunk the interruption fell in.
 
@@ -63,7 +64,7 @@ class Checkpoint:
     step: np.ndarray        # int32 scalar
     dt_last: np.ndarray     # float64 scalar
     mood: np.ndarray        # MOOD statistics (integrate.MOOD_STATS)
-    next_target: int        # index of the next output time
+    next_target: int        # index of the next step target (a sample time of the series or an output time)
     n_snapshots: int        # snapshots in fields.h5 when the checkpoint was written
     nspec: dict             # NeighborSpec fields
     geom_source: tuple[np.ndarray, np.ndarray] | None  # (x, vol) of the Eulerian geometry
