@@ -38,8 +38,8 @@ import numpy as np
 from .errors import InputError
 from .state import Particles
 
-__all__ = ["CHECKPOINT", "RUN_FILES", "Checkpoint", "compare_settings", "holds_run", "prepare_out_dir",
-           "read_checkpoint", "write_checkpoint"]
+__all__ = ["CHECKPOINT", "RESTART_ADDED_KEYS", "RUN_FILES", "Checkpoint", "compare_settings", "holds_run",
+           "prepare_out_dir", "read_checkpoint", "write_checkpoint"]
 
 CHECKPOINT = "checkpoint.h5"
 FORMAT = "mlsph_jax.checkpoint"
@@ -50,6 +50,9 @@ RUN_FILES = ("summary.json", "fields.h5", "fields.xmf", "config.toml", "timeseri
 _RUN_MARKERS = ("summary.json", "fields.h5", CHECKPOINT)
 #: Settings a restart may change (they do not change the numbers of the steps).
 RESTART_MAY_CHANGE = ("time.max_steps", "output.progress", "output.plots", "output.degree_fallback_warn")
+#: Config keys added after checkpoints were first written, with the value that reproduces the runs
+#: made before them: a run's config without the key restarts when the key has that value now.
+RESTART_ADDED_KEYS = {"output.series_interval": 0.0}
 
 _CARRY_SCALARS = ("t", "step", "dt_last")
 _PARTICLE_FIELDS = ("x", "vol", "q", "kind", "ppd")
@@ -177,10 +180,13 @@ def _flatten(d: Mapping | None, prefix: str = "") -> dict:
     return out
 
 
-def compare_settings(saved: Mapping, current: Mapping, *, where: str, may_change=()) -> list[str]:
-    """``"key: saved -> current"`` for every (dotted) key whose value differs, except ``may_change``."""
+def compare_settings(saved: Mapping, current: Mapping, *, where: str, may_change=(),
+                     added: Mapping | None = None) -> list[str]:
+    """``"key: saved -> current"`` for every (dotted) key whose value differs, except ``may_change``;
+    a key of ``added`` absent from ``saved`` is taken as its value there (a key added later)."""
     a, b = _flatten(json.loads(json.dumps(saved, default=_json_default))), \
         _flatten(json.loads(json.dumps(current, default=_json_default)))
+    a = {**(added or {}), **a}
     diffs = []
     for k in sorted(set(a) | set(b)):
         if k in may_change:

@@ -33,6 +33,7 @@ import numpy as np
 from . import fallback, io
 from . import neighbors as nb
 from .checkpoint import (
+    RESTART_ADDED_KEYS,
     RESTART_MAY_CHANGE,
     Checkpoint,
     compare_settings,
@@ -518,7 +519,8 @@ class Simulation:
                              f"folder of a {self.problem.case!r} run (or restart {ck.case!r} from its own config)")
         diffs = compare_settings(ck.settings, settings, where="")
         if config is not None and ck.config is not None:
-            diffs += compare_settings(ck.config, config, where="", may_change=RESTART_MAY_CHANGE)
+            diffs += compare_settings(ck.config, config, where="", may_change=RESTART_MAY_CHANGE,
+                                      added=RESTART_ADDED_KEYS)
         if diffs:
             raise InputError(f"{where}: the run was made with other settings: " + "; ".join(diffs)
                              + f"; allowed: the run's own settings (only {', '.join(RESTART_MAY_CHANGE)} may change)")

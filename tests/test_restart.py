@@ -220,6 +220,23 @@ def test_restart_refusals_name_what_is_wrong(sim, full, tmp_path):
     assert (out / "fields.h5").stat().st_size == len(data) // 2   # nothing rewritten
 
 
+def test_a_checkpoint_from_before_series_interval_restarts(sim, full, tmp_path):
+    """A run checkpointed before ``output.series_interval`` existed (its saved config lacks the key)
+    restarts when the key is at its default, 0 (the same targets), and is refused with another
+    value, naming the key."""
+    out = _copy_stopped(sim, full, tmp_path)
+    with h5py.File(out / CHECKPOINT, "r+") as f:
+        meta = json.loads(f.attrs["meta"])
+        del meta["config"]["output"]["series_interval"]
+        f.attrs["meta"] = json.dumps(meta)
+    cfg, pb = sod("output.series_interval=0.0125")
+    with pytest.raises(InputError, match=r"output.series_interval: 0.0 in the run, 0.0125 now"):
+        run_problem(pb, cfg, out_dir=out, quiet=True, restart=True)
+    cfg, pb = sod()
+    res = run_problem(pb, cfg, out_dir=out, quiet=True, restart=True)
+    assert_same_state(res.particles, full.particles)
+
+
 # --------------------------------------------------------------------------------------------
 # slow: MOOD, ale_shift and a real SIGINT to the command line
 # --------------------------------------------------------------------------------------------
