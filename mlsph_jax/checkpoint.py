@@ -7,12 +7,13 @@ at every output time, when it is interrupted and when it fails: the scan carry (
 ``x, vol, q, kind, ppd``, time, step count, last ``dt``, MOOD statistics, the last step's
 approximation degrees and the reduced-degree statistics), the neighbour spec
 the run has grown to, the particles the Eulerian geometry was computed from, the diagnostics
-time series so far, the steady-state test's previous velocities, the index of the next output
-time, the driver settings and the resolved configuration.  The file is replaced atomically
+time series so far (sampled at the output times or at the finer ``output.series_interval``), the
+steady-state test's previous velocities, the index of the next step target (a sample or output
+time), the driver settings and the resolved configuration.  The file is replaced atomically
 (written to a temporary file, then renamed): a kill leaves the previous checkpoint intact.
 
 Every step of the driver is a function of the carry alone (the step size is the CFL step of the
-carried state, clipped to the next output time), so a run resumed from a checkpoint
+carried state, clipped to the next sample or output time), so a run resumed from a checkpoint
 (:meth:`Simulation.run` with ``restart=True``, ``mlsph run --restart DIR``) reproduces the
 uninterrupted run bit for bit, whatever chunk the interruption fell in.
 
@@ -37,8 +38,8 @@ import numpy as np
 from .errors import InputError
 from .state import Particles
 
-__all__ = ["CHECKPOINT", "RUN_FILES", "Checkpoint", "compare_settings", "holds_run", "prepare_out_dir",
-           "read_checkpoint", "write_checkpoint"]
+__all__ = ["CHECKPOINT", "RESTART_ADDED_KEYS", "RUN_FILES", "Checkpoint", "compare_settings", "holds_run",
+           "prepare_out_dir", "read_checkpoint", "write_checkpoint"]
 
 CHECKPOINT = "checkpoint.h5"
 FORMAT = "mlsph_jax.checkpoint"
@@ -49,6 +50,9 @@ RUN_FILES = ("summary.json", "fields.h5", "fields.xmf", "config.toml", "timeseri
 _RUN_MARKERS = ("summary.json", "fields.h5", CHECKPOINT)
 #: Settings a restart may change (they do not change the numbers of the steps).
 RESTART_MAY_CHANGE = ("time.max_steps", "output.progress", "output.plots", "output.degree_fallback_warn")
+#: Config keys added after checkpoints were first written, with the value that reproduces the runs
+#: made before them: a run's config without the key restarts when the key has that value now.
+RESTART_ADDED_KEYS = {"output.series_interval": 0.0}
 
 _CARRY_SCALARS = ("t", "step", "dt_last")
 _PARTICLE_FIELDS = ("x", "vol", "q", "kind", "ppd")
@@ -63,7 +67,7 @@ class Checkpoint:
     step: np.ndarray        # int32 scalar
     dt_last: np.ndarray     # float64 scalar
     mood: np.ndarray        # MOOD statistics (integrate.MOOD_STATS)
-    next_target: int        # index of the next output time
+    next_target: int        # index of the next step target (a sample time of the series or an output time)
     n_snapshots: int        # snapshots in fields.h5 when the checkpoint was written
     nspec: dict             # NeighborSpec fields
     geom_source: tuple[np.ndarray, np.ndarray] | None  # (x, vol) of the Eulerian geometry
@@ -176,10 +180,13 @@ def _flatten(d: Mapping | None, prefix: str = "") -> dict:
     return out
 
 
-def compare_settings(saved: Mapping, current: Mapping, *, where: str, may_change=()) -> list[str]:
-    """``"key: saved -> current"`` for every (dotted) key whose value differs, except ``may_change``."""
+def compare_settings(saved: Mapping, current: Mapping, *, where: str, may_change=(),
+                     added: Mapping | None = None) -> list[str]:
+    """``"key: saved -> current"`` for every (dotted) key whose value differs, except ``may_change``;
+    a key of ``added`` absent from ``saved`` is taken as its value there (a key added later)."""
     a, b = _flatten(json.loads(json.dumps(saved, default=_json_default))), \
         _flatten(json.loads(json.dumps(current, default=_json_default)))
+    a = {**(added or {}), **a}
     diffs = []
     for k in sorted(set(a) | set(b)):
         if k in may_change:

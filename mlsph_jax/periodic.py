@@ -1,9 +1,10 @@
 """Statistics of a periodic signal over whole periods: the Strouhal number, mean drag and lift
 amplitude / rms of vortex shedding (issue 17 item 5; thesis §4.5.3, Table 4.2).
 
-Input: a time series ``(t[n], y[n])`` sampled at the output times (``timeseries.csv``; the
-samples need not be uniform).  Only the part after a transient ``t0`` is used, and of it only
-whole periods of the reference signal (the lift C_L):
+Input: a time series ``(t[n], y[n])`` as a run records it (``timeseries.csv``: at the output
+times, or uniformly every ``output.series_interval``; the samples need not be uniform).  Only the
+part after a transient ``t0`` is used, and of it only whole periods of the reference signal (the
+lift C_L):
 
 * **Periods** from the upward zero crossings of y - ybar (ybar its mean after ``t0``, then the mean
   over the whole periods found, once more), each located by linear interpolation between the two
@@ -149,7 +150,8 @@ def whole_period_statistics(t, y, t0: float = 0.0, others: Mapping[str, np.ndarr
     per_sample = period * np.count_nonzero(inside) / (t_last - t_first)
     if per_sample < min_samples:
         return {"note": f"under-resolved: {per_sample:.3g} samples per period (period {period:.4g}), "
-                        f"{min_samples} needed (more output.snapshots)", "n_periods": n_per}
+                        f"{min_samples} needed (a shorter output.series_interval, or more output.snapshots)",
+                "n_periods": n_per}
     gap = float(np.max(np.diff(np.concatenate([[t_first], ta[inside], [t_last]]))))
     if gap > period / min_samples * 1.5:
         return {"note": f"a gap of {gap:.3g} in the samples (period {period:.4g}): fewer than {min_samples} "

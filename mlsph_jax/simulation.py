@@ -33,6 +33,7 @@ import numpy as np
 from . import fallback, io
 from . import neighbors as nb
 from .checkpoint import (
+    RESTART_ADDED_KEYS,
     RESTART_MAY_CHANGE,
     Checkpoint,
     compare_settings,
@@ -40,7 +41,12 @@ from .checkpoint import (
     read_checkpoint,
     write_checkpoint,
 )
-from .config.tables import LOCAL_TIME_STEPPING_ALLOWED, local_time_stepping_conflict
+from .config.tables import (
+    LOCAL_TIME_STEPPING_ALLOWED,
+    local_time_stepping_conflict,
+    series_allowed,
+    series_per_output,
+)
 from .eos import get_eos, to_primitive
 from .errors import DegreeFallbackWarning, InputError, NeighborOverflowError, RunInterrupted, SimulationError
 from .integrate import MOOD_STATS, Carry, StepControl, initial_carry
@@ -59,7 +65,8 @@ class Problem:
     plus the case's metrics (``metrics(particles, t, params) -> dict``) and plotting hook
     (``plot(out_dir, particles, t, params)``), an optional ``boundary`` (ghost regeneration,
     :class:`mlsph_jax.boundaries.MirrorWalls`), ``diagnostics(particles, t, params) -> dict``
-    recorded at every output time (the ``timeseries`` of the summary and ``timeseries.csv``) and
+    recorded at every output time or at the finer sample times of ``output.series_interval``
+    (:meth:`Simulation.run`; the ``timeseries`` of the summary and ``timeseries.csv``) and
     ``steady_tol``: when > 0 the run stops early once the velocity changes by less than
     ``steady_tol`` (relative to its maximum, per unit of time) between two output times.
     ``differentiable_diagnostics`` / ``differentiable_metrics``: jnp versions recorded by
@@ -68,7 +75,7 @@ class Problem:
     as a jnp function of the parameters, for a layout that follows them (the cylinder's
     body-fitted layout of an elliptic body, decision 65); ``None``: ``particles`` for any
     parameters.  ``series_statistics(series) -> dict``: statistics of the recorded time series
-    (``series`` maps each diagnostic and ``t`` to its array over the output times), computed once
+    (``series`` maps each diagnostic and ``t`` to its array over the sample times), computed once
     at the end of a run; written to ``summary.json`` under ``series_statistics``, the finite numbers
     of its ``metrics`` entry also among the run's metrics (the cylinder's Strouhal number and
     whole-period means, :mod:`mlsph_jax.periodic`; none when the run is too short for them)."""
@@ -213,11 +220,13 @@ class Simulation:
         (snapshots, diagnostics, regrowth); every process gathers the whole state."""
         return p if self.sharding is None else self.sharding.gather(p)
 
-    def _settings(self, snapshots: int) -> dict:
+    def _settings(self, snapshots: int, per_output: int = 1) -> dict:
         """Driver settings a restart must share with the run it continues (the numbers of the
         steps depend on them; ``max_steps`` may change)."""
         c = self.control
         return {"case": self.problem.case, "t_end": float(self.problem.t_end), "snapshots": int(snapshots),
+                **({"series_per_output": int(per_output)} if per_output > 1 else {}),
+                # (absent when the series is sampled at the output times: older checkpoints restart)
                 "chunk": self.chunk_steps, "cfl": c.cfl, "cfl_viscous": c.cfl_viscous, "dt": c.dt_fixed,
                 "dt_min": c.dt_min, "neighbor_headroom": float(self.headroom),
                 **({"local_time_stepping": True, "local_step_ratio": c.local_ratio} if c.local else {}),
@@ -227,8 +236,18 @@ class Simulation:
 
     def run(self, out_dir: str | Path | None = None, snapshots: int = 10, progress: bool = True,
             plots: bool = True, *, overwrite: bool = False, restart: bool = False,
-            degree_fallback_warn: float = fallback.DEFAULT_WARN) -> Result:
+            degree_fallback_warn: float = fallback.DEFAULT_WARN, series_interval: float = 0.0) -> Result:
         """Run to ``t_end`` writing ``snapshots`` output times (plus the initial state) to ``out_dir``.
+
+        The problem's ``diagnostics`` (the time series: ``timeseries.csv``, summary.json
+        ``timeseries`` and ``series_statistics``) are recorded at t = 0 and at every output time, or,
+        with ``series_interval`` > 0 (``output.series_interval``; a whole fraction t_end /
+        (snapshots m) of the output interval), at the m-times finer uniform times k t_end /
+        (snapshots m), which include the output times; a sample time that is not an output time
+        records the diagnostics and writes nothing else (no snapshot, checkpoint or steady-state
+        test).  Every sample time is a target of the step control like an output time, so the run
+        is bit for bit the run with ``snapshots m`` outputs (the same targets), without their
+        snapshots.
 
         ``out_dir`` must not hold a run (``summary.json``, ``fields.h5`` or ``checkpoint.h5``) unless
         ``overwrite`` (its old outputs are removed first) or ``restart``: continue the run of
@@ -260,10 +279,16 @@ class Simulation:
         if restart and out is None:
             raise InputError("invalid restart=True without out_dir; allowed: the output folder of the run to "
                              "continue")
-        targets = list(np.linspace(0.0, pb.t_end, snapshots + 1)[1:])
+        per_output, why = series_per_output(pb.t_end, snapshots, series_interval)
+        if why:
+            raise InputError(f"invalid series_interval={series_interval!r} (output.series_interval): {why}; "
+                             f"allowed: {series_allowed(pb.t_end, snapshots)}")
+        # the step targets: the sample times of the series, every per_output-th an output time (with
+        # per_output = 1 the output times themselves, as a run without a finer series)
+        targets = list(np.linspace(0.0, pb.t_end, snapshots * per_output + 1)[1:])
         targets[-1] = pb.t_end
         totals0 = conserved_totals(pb.particles)
-        settings = self._settings(snapshots)
+        settings = self._settings(snapshots, per_output)
         config = None if pb.config is None else json.loads(json.dumps(pb.config, default=str))
         steady = None
         wall_before = compile_before = 0.0
@@ -400,12 +425,14 @@ class Simulation:
                     if interrupted is not None:
                         status = "interrupted"
                         break
-                    snapshot()
-                    warn_fallback()
                     t = float(carry.t)
                     host = self._host(carry.particles)
                     if pb.diagnostics is not None:
                         series.append({"t": t, **pb.diagnostics(host, t, pb.params)})
+                    if (index + 1) % per_output:   # a sample time between two outputs: the series only
+                        continue
+                    snapshot()
+                    warn_fallback()
                     done = False
                     if pb.steady_tol > 0:
                         vel = _velocity(host)
@@ -492,7 +519,8 @@ class Simulation:
                              f"folder of a {self.problem.case!r} run (or restart {ck.case!r} from its own config)")
         diffs = compare_settings(ck.settings, settings, where="")
         if config is not None and ck.config is not None:
-            diffs += compare_settings(ck.config, config, where="", may_change=RESTART_MAY_CHANGE)
+            diffs += compare_settings(ck.config, config, where="", may_change=RESTART_MAY_CHANGE,
+                                      added=RESTART_ADDED_KEYS)
         if diffs:
             raise InputError(f"{where}: the run was made with other settings: " + "; ".join(diffs)
                              + f"; allowed: the run's own settings (only {', '.join(RESTART_MAY_CHANGE)} may change)")
@@ -675,7 +703,8 @@ def run_problem(problem: Problem, cfg: Mapping | None = None, out_dir=None, quie
     sim = make_simulation(problem, cfg)
     return sim.run(out_dir, snapshots=ocfg.get("snapshots", 10), progress=ocfg.get("progress", True) and not quiet,
                    plots=ocfg.get("plots", True), overwrite=overwrite, restart=restart,
-                   degree_fallback_warn=ocfg.get("degree_fallback_warn", fallback.DEFAULT_WARN))
+                   degree_fallback_warn=ocfg.get("degree_fallback_warn", fallback.DEFAULT_WARN),
+                   series_interval=ocfg.get("series_interval", 0.0))
 
 
 def make_simulation(problem: Problem, cfg: Mapping | None = None) -> Simulation:

@@ -88,7 +88,8 @@ def test_defaults_filled():
     assert cfg["time"] == {"t_end": 0.2, "cfl": 0.3, "dt": 0.0, "max_steps": 1_000_000,
                            "chunk": 50, "dt_min": 1e-14, "cfl_viscous": 0.125, "local_time_stepping": False,
                            "local_step_ratio": 4.0}
-    assert cfg["output"] == {"snapshots": 10, "plots": True, "progress": True, "degree_fallback_warn": 0.01}
+    assert cfg["output"] == {"snapshots": 10, "series_interval": 0.0, "plots": True, "progress": True,
+                             "degree_fallback_warn": 0.01}
     assert cfg["physics"] == {"mu": 0.0, "kappa": 0.0, "body_force": []}
     assert cfg["eos"] == {"kind": "ideal_gas", "gamma": 1.4}
     assert cfg["case"]["domain"] == [0.0, 1.0] and isinstance(cfg["case"]["domain"][1], float)

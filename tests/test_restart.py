@@ -118,6 +118,34 @@ def test_a_signal_writes_the_last_good_state_and_restart_is_bitwise(sim, full, t
     assert res.summary["status"] == "ok" and res.summary["timeseries"] == full.summary["timeseries"]
 
 
+def test_a_finer_series_restarts_bitwise_from_between_two_outputs(sim, tmp_path):
+    """``output.series_interval`` (issue 17): four samples per output interval.  A SIGTERM raised at
+    the sample t = 0.0125, between two outputs, stops the run there: the checkpoint holds the
+    samples so far and the index of the next sample (not of the next output); the restart records
+    the rest of the series and reaches the final state bit for bit as the uninterrupted run, and
+    fields.h5 holds the outputs and the state at the stop, no sample.  A restart with another
+    series_interval (other step targets, other numbers) is refused, naming it."""
+    full = sim.run(tmp_path / "full", snapshots=2, progress=False, series_interval=0.00625)
+    assert full.summary["timeseries"]["t"] == [0.0, *np.linspace(0.0, 0.05, 9)[1:]]
+    out = tmp_path / "run"
+    TRIGGER.update(t=0.0125, signal=signal.SIGTERM)
+    with pytest.raises(RunInterrupted):
+        sim.run(out, snapshots=2, progress=False, series_interval=0.00625)
+    ck = read_checkpoint(out)
+    assert float(ck.t) == 0.0125 and ck.next_target == 2 and ck.status == "interrupted"
+    assert [row["t"] for row in ck.series] == [0.0, 0.00625, 0.0125]
+    with pytest.raises(InputError, match=r"series_per_output: 4 in the run, '<absent>' now"):
+        sim.run(out, snapshots=2, progress=False, restart=True)
+    with pytest.raises(InputError, match=r"series_per_output: 4 in the run, 2 now"):
+        sim.run(out, snapshots=2, progress=False, restart=True, series_interval=0.0125)
+    res = sim.run(out, snapshots=2, progress=False, restart=True, series_interval=0.00625)
+    assert_same_state(res.particles, full.particles)
+    assert res.summary["timeseries"] == full.summary["timeseries"] and res.summary["n_steps"] == full.summary["n_steps"]
+    assert (out / "timeseries.csv").read_text() == (full.out_dir / "timeseries.csv").read_text()
+    with h5py.File(out / "fields.h5") as f:
+        assert [float(g.attrs["t"]) for _, g in sorted(f["snapshots"].items())] == [0.0, 0.0125, 0.025, 0.05]
+
+
 def test_cli_interrupted_run_exits_130_with_one_line(monkeypatch, capsys, tmp_path):
     from mlsph_jax import simulation
 
@@ -190,6 +218,23 @@ def test_restart_refusals_name_what_is_wrong(sim, full, tmp_path):
     with pytest.raises(InputError, match="fields.h5.*(unreadable|truncated)"):
         restart(out, ["time.max_steps=100"])
     assert (out / "fields.h5").stat().st_size == len(data) // 2   # nothing rewritten
+
+
+def test_a_checkpoint_from_before_series_interval_restarts(sim, full, tmp_path):
+    """A run checkpointed before ``output.series_interval`` existed (its saved config lacks the key)
+    restarts when the key is at its default, 0 (the same targets), and is refused with another
+    value, naming the key."""
+    out = _copy_stopped(sim, full, tmp_path)
+    with h5py.File(out / CHECKPOINT, "r+") as f:
+        meta = json.loads(f.attrs["meta"])
+        del meta["config"]["output"]["series_interval"]
+        f.attrs["meta"] = json.dumps(meta)
+    cfg, pb = sod("output.series_interval=0.0125")
+    with pytest.raises(InputError, match=r"output.series_interval: 0.0 in the run, 0.0125 now"):
+        run_problem(pb, cfg, out_dir=out, quiet=True, restart=True)
+    cfg, pb = sod()
+    res = run_problem(pb, cfg, out_dir=out, quiet=True, restart=True)
+    assert_same_state(res.particles, full.particles)
 
 
 # --------------------------------------------------------------------------------------------

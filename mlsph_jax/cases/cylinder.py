@@ -91,9 +91,10 @@ note instead of numbers when the run is too short, does not shed, is not saturat
 has non-finite values, failed, or runs local time steps, or the output interval does not resolve
 the period.  The statistics are host-side numbers (numpy), so ``mlsph sensitivity --of cd_mean``
 is not available; the differentiable objectives are the instantaneous ``cd``/``cl``. C_L
-and C_D are recorded at the output times (``output.snapshots`` of them), so the output interval
-t_end / snapshots must resolve the period (~6 D / U_inf at Re = 100: >= 8 samples per period are
-required, ~24 used).
+and C_D are recorded at the samples of the time series: every ``output.series_interval`` (a whole
+fraction of the output interval, recorded without writing the fields) or, without it, at the output
+times; the sampling must resolve the period (~6 D / U_inf at Re = 100: >= 8 samples per period are
+required; ``cylinder_re100`` samples every 0.25, ~24 per period, and writes 30 snapshots).
 
 Diagnostics (every output time, ``timeseries.csv``) and metrics (final state), forces from the
 body's quadrature points (:meth:`~mlsph_jax.wall_integral.BoundaryIntegralWalls.coefficients`):

@@ -25,6 +25,8 @@ from .tables import (
     all_eos_keys,
     eos_keys,
     local_time_stepping_conflict,
+    series_allowed,
+    series_per_output,
 )
 
 __all__ = ["case_table", "check_defaults_override", "get_case", "load", "loads", "parse_override",
@@ -203,6 +205,11 @@ def validate(cfg: Mapping) -> dict:
     why = local_time_stepping_conflict(out["time"]["dt"], out["scheme"]["frame"])
     if out["time"]["local_time_stepping"] and why:
         raise ConfigError(f"invalid time.local_time_stepping=true: {why}; allowed: {LOCAL_TIME_STEPPING_ALLOWED}")
+    interval, t_end, snaps = out["output"]["series_interval"], out["time"]["t_end"], out["output"]["snapshots"]
+    why = series_per_output(t_end, snaps, interval)[1]
+    if why:
+        raise ConfigError(f"invalid output.series_interval={show(interval)}: {why}; allowed: "
+                          f"{series_allowed(t_end, snaps)}")
     if case.check is not None:
         case.check(out)
     return out

@@ -11,6 +11,7 @@ component, not to this module (:func:`effective_beta`).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 
 from ..registry import names_of, registry
@@ -217,6 +218,15 @@ OUTPUT_KEYS: dict[str, Key] = {
     "snapshots": Key(int, 10, minimum=1,
                      doc="number of snapshots written besides the initial one (equally spaced "
                          "in time)"),
+    "series_interval": Key(float, 0.0, minimum=0.0, unit="s", note="0 = at the output times only",
+                           doc="time between two samples of the time series (the case's diagnostics, e.g. the "
+                               "cylinder's C_D and C_L: timeseries.csv, summary.json timeseries and "
+                               "series_statistics), recorded without writing a snapshot; must divide the output "
+                               "interval t_end / snapshots, so the samples are uniform and include the output "
+                               "times. Each sample time is a step target like an output time (the step before it "
+                               "is shortened to reach it): the run equals one with outputs at every sample time. "
+                               "With time.local_time_stepping the samples are at pseudo-times (a convergence "
+                               "history)"),
     "plots": Key(bool, True, doc="write PNG plots at the end of the run"),
     "progress": Key(bool, True, doc="show a progress bar during the run"),
     "degree_fallback_warn": Key(float, 0.01, minimum=0.0, maximum=1.0, note="1 = never warn",
@@ -227,6 +237,36 @@ OUTPUT_KEYS: dict[str, Key] = {
                                     "gradient fallback, or exactly-zero fixed-centre derivatives at degree 0 "
                                     "(fractions in summary.json degree_fallback, per-particle degrees in fields.h5)"),
 }
+
+
+#: relative mismatch of ``output.series_interval`` against a whole fraction of the output interval
+#: that is taken for round-off (0.25 in a 5.0 interval is exact; 0.1 in 1/3 is not a divisor)
+SERIES_RTOL = 1e-9
+
+
+def series_per_output(t_end: float, snapshots: int, interval: float) -> tuple[int, str | None]:
+    """``(m, None)``: ``output.series_interval`` = ``interval`` samples the time series ``m``
+    times per output interval t_end / snapshots (m = 1 for ``interval`` = 0: at the output times);
+    ``(0, why)`` when it cannot (negative, not finite, longer than the output interval or not a
+    whole fraction of it).  The config check and :class:`mlsph_jax.simulation.Simulation` share it."""
+    if isinstance(interval, bool) or not isinstance(interval, int | float) or not math.isfinite(interval) \
+            or interval < 0:
+        return 0, "not a finite number >= 0"
+    if interval == 0:
+        return 1, None
+    out = t_end / snapshots
+    m = round(out / interval)
+    if m < 1 or abs(m * interval - out) > SERIES_RTOL * out:
+        return 0, (f"not a whole fraction of the output interval time.t_end / output.snapshots = {t_end!r} / "
+                   f"{snapshots} = {out:.12g}")
+    return m, None
+
+
+def series_allowed(t_end: float, snapshots: int) -> str:
+    """What ``output.series_interval`` may be for this end time and output count (error messages)."""
+    out = t_end / snapshots
+    return (f"0 (samples at the output times) or the output interval {out:.12g} divided by a whole number "
+            f"(e.g. {out / 2:.6g}, {out / 10:.6g}); or change output.snapshots")
 
 
 #: ``[run]``: execution (devices); docs/performance.md.
