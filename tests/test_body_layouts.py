@@ -106,9 +106,10 @@ def test_uniform_stream_stays_uniform_on_the_lattice_layouts(layout):
     right-hand side to round-off, frozen particles get no update; with the body, a fluid at rest
     (the wall's own velocity) has zero boundary terms and right-hand side to round-off, while the
     stream through the no-slip body does not (the check can fail: 4-8 relative).  Round-off of the
-    config's cubic reconstruction (decision 71), measured relative to max |q|: 1.9e-13 on the
-    lattice, 3.9e-12 on the blend, whose junction cells are irregular (the MLS moment matrices of
-    a cubic basis there are less well conditioned); bound 2e-11."""
+    config's cubic reconstruction (docs/validation.md "The front stagnation pressure"), measured
+    relative to max |q|: 1.9e-13 on the lattice, 3.9e-12 on the blend, whose junction cells are
+    irregular (the MLS moment matrices of a cubic basis there are less well conditioned); bound
+    2e-11."""
     cfg = _cfg(layout, ("case.r_far=2.0", "case.blend_radius=1.0") if layout == "blend" else
                ("case.r_far=2.0", "case.lattice_ratio=1.5"))
     pb = build_problem(cfg)

@@ -168,11 +168,11 @@ def test_coarse_re40_drag_in_band():
 def test_builtin_config_meets_the_re40_targets():
     """configs/cylinder.toml as shipped (n_theta = 48, far field at 40 D, local time steps to the
     steady state) against issue 17's Re = 40 targets: C_D within 3 % of 1.56, C_p front within 4 %
-    of 1.18, base within 8 % of -0.51, L_w / D within 10 % of 2.3 (about 11 min on 2 shared
-    cores).  Measured (docs/validation.md, cubic reconstruction since decision 71): steady at t = 20,
-    C_D 1.527 and C_p base -0.517 meet their targets; C_p front 1.096 and L_w / D 1.74 do not (the
-    wake and the stagnation peak are under-resolved at n_theta = 48, docs/validation.md "The front
-    stagnation pressure"): C_D must meet its target; the others are reported as an expected failure
+    of 1.18, base within 8 % of -0.51, L_w / D within 10 % of 2.3 (about 14 min on 2 shared
+    cores at load 7).  Measured (docs/validation.md "The front stagnation pressure", cubic
+    reconstruction): steady at t = 20, C_D 1.515 and C_p base -0.521 meet their targets; C_p front
+    1.087 and L_w / D 1.75 do not (the wake and the stagnation peak are under-resolved at n_theta
+    = 48): C_D must meet its target; the others are reported as an expected failure
     with the measured values (and the test passes once they are met)."""
     cfg = config_mod.load(CONFIG_DIR / "cylinder.toml", ["output.plots=false", "output.progress=false"])
     s = run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True).summary
