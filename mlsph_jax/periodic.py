@@ -29,7 +29,7 @@ What is reported when the signal does not allow it (:func:`whole_period_statisti
 does not oscillate above ``floor`` times the flow's scale (the largest |value| of the ``others``
 columns, e.g. the drag; 1 without them: a mirror-symmetric flow keeps |C_L| ~ 1e-13 of C_D, a
 float32 run ~1e-6: no shedding); fewer than ``min_periods`` whole periods after ``t0``; fewer than
-``min_samples`` samples per period (the output interval does not resolve the period), or a gap
+``min_samples`` samples per period (the sampling does not resolve the period), or a gap
 in the sampling longer than period / ``min_samples``; crossing intervals that spread by more than
 ``max_spread`` of their median, or a zero-crossing frequency more than ``max_mismatch`` (or one
 spectral bin) away from the spectral one (extra or missing crossings: a ripple at another

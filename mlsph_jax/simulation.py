@@ -245,9 +245,10 @@ class Simulation:
         (snapshots m) of the output interval), at the m-times finer uniform times k t_end /
         (snapshots m), which include the output times; a sample time that is not an output time
         records the diagnostics and writes nothing else (no snapshot, checkpoint or steady-state
-        test).  Every sample time is a target of the step control like an output time, so the run
-        is bit for bit the run with ``snapshots m`` outputs (the same targets), without their
-        snapshots.
+        test).  Every sample time is a target of the step control like an output time, so the steps
+        are bit for bit those of the run with ``snapshots m`` outputs (the same targets), without
+        their snapshots; the steady-state stop tests only the outputs, so with ``steady_tol`` > 0
+        the two can stop at different times.
 
         ``out_dir`` must not hold a run (``summary.json``, ``fields.h5`` or ``checkpoint.h5``) unless
         ``overwrite`` (its old outputs are removed first) or ``restart``: continue the run of
@@ -282,7 +283,7 @@ class Simulation:
         per_output, why = series_per_output(pb.t_end, snapshots, series_interval)
         if why:
             raise InputError(f"invalid series_interval={series_interval!r} (output.series_interval): {why}; "
-                             f"allowed: {series_allowed(pb.t_end, snapshots)}")
+                             f"allowed: {series_allowed(pb.t_end, snapshots, series_interval)}")
         # the step targets: the sample times of the series, every per_output-th an output time (with
         # per_output = 1 the output times themselves, as a run without a finer series)
         targets = list(np.linspace(0.0, pb.t_end, snapshots * per_output + 1)[1:])

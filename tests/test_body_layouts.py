@@ -139,6 +139,10 @@ def test_shape_derivative_refused_on_a_lattice_but_not_the_stream_angle():
         jax.grad(f("geometry.body.radius"))(pb.params["geometry.body.radius"])
     g = jax.grad(f("geometry.body.alpha"))(pb.params["geometry.body.alpha"])
     assert np.isfinite(float(g))
+    # a concrete change of the shape (no tracer) is refused too: the particles would not follow it
+    with pytest.raises(InputError, match=r"geometry\.body\.radius"):
+        f("geometry.body.radius")(pb.params["geometry.body.radius"] * 1.2)
+    f("geometry.body.radius")(pb.params["geometry.body.radius"])     # the set-up shape is fine
 
 
 # --- bad input --------------------------------------------------------------------------------

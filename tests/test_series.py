@@ -83,8 +83,9 @@ def _sod(*sets):
 
 
 def test_interval_equal_to_the_output_interval_is_the_default():
-    """series_interval = t_end / snapshots samples at the output times: the same settings (a
-    restart of either continues the other) and the same targets as 0."""
+    """series_interval = t_end / snapshots samples at the output times: the same driver settings
+    and the same targets as 0 (a restart still compares the config, so changing the key's value
+    between a run and its restart is refused like any other key)."""
     cfg0, pb = _sod()
     cfg1, _ = _sod("output.series_interval=0.025")
     assert cfg0["output"]["series_interval"] == 0.0 and cfg1["output"]["series_interval"] == 0.025
@@ -104,6 +105,23 @@ def test_bad_series_interval_names_the_key_the_value_and_what_is_allowed(value, 
     with pytest.raises(ConfigError) as err:
         _sod(f"output.series_interval={value}")
     assert all(w in str(err.value) for w in words), str(err.value)
+
+
+def test_series_interval_errors_offer_values_that_work():
+    """The suggested intervals (printed at full precision) validate, the suggested output counts
+    validate, and a sample count beyond the cap is refused before any run (decision 70)."""
+    from mlsph_jax.config.tables import MAX_SERIES_SAMPLES
+
+    with pytest.raises(ConfigError) as err:         # output interval 0.05 / 3: 0.025 does not divide it
+        _sod("output.snapshots=3", "output.series_interval=0.025")
+    msg = str(err.value)
+    half = repr(0.05 / 3 / 2)
+    assert half in msg and "divisor of time.t_end / output.series_interval = 2" in msg, msg
+    _sod("output.snapshots=3", f"output.series_interval={half}")
+    _sod("output.snapshots=1", "output.series_interval=0.025")
+    tiny = 0.05 / (2 * MAX_SERIES_SAMPLES)
+    with pytest.raises(ConfigError, match=rf"output.series_interval=.*{2 * MAX_SERIES_SAMPLES} samples"):
+        _sod(f"output.series_interval={tiny!r}")
 
 
 def test_bad_series_interval_of_the_python_driver():

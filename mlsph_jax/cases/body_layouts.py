@@ -170,13 +170,18 @@ def _perimeter(body, params) -> float:
     return float(np.sum(np.asarray(body.points(params)[1])))
 
 
-def _fixed_positions(x, vol, body, layout: str):
-    """``positions_at`` of a lattice layout: the set-up particles for any parameters; a traced
-    shape parameter (a shape derivative) is refused."""
+def _fixed_positions(x, vol, body, layout: str, params):
+    """``positions_at`` of a lattice layout: the set-up particles for the set-up shape; a traced
+    shape parameter (a shape derivative) or a concrete one that differs from the set-up value (the
+    particles would not follow the body) is refused."""
+    keys = [k for k in (body.key(f) for f in SHAPE_FIELDS) if k in params]
+    setup = {k: np.asarray(params[k], float) for k in keys}
+
     def positions_at(P):
-        moving = [k for k in (body.key(f) for f in SHAPE_FIELDS) if k in P and isinstance(P[k], jax.core.Tracer)]
+        moving = [k for k in keys if k in P and (isinstance(P[k], jax.core.Tracer)
+                                                 or not np.array_equal(np.asarray(P[k], float), setup[k]))]
         if moving:
-            raise InputError(f"invalid derivative with respect to {', '.join(moving)} with case.layout=\"{layout}\": "
+            raise InputError(f"invalid derivative or change of {', '.join(moving)} with case.layout=\"{layout}\": "
                              "the lattice is cut out around the body once at set-up (its particle set and "
                              "Voronoi volumes change discontinuously with the body), so it cannot follow the "
                              "shape; allowed: case.layout=\"polar\" for shape derivatives (geometry.body.alpha "
@@ -332,7 +337,7 @@ class Cartesian:
         keep[near] &= distance_to_polygon(cand[near], poly) >= GAP * h
         x, vol, kind = _finish(cand[keep], _frozen_lattice(pts, r_far, reach), h, body, params, "cartesian",
                                 case["lattice_ratio"])
-        return BodyLayout(x, vol, kind, h, _fixed_positions(x, vol, body, "cartesian"))
+        return BodyLayout(x, vol, kind, h, _fixed_positions(x, vol, body, "cartesian", params))
 
 
 class Blend:
@@ -372,7 +377,7 @@ class Blend:
         fluid = np.concatenate([x_r, cand[keep]])
         x, vol, kind = _finish(fluid, _frozen_lattice(pts, r_far, reach), h, body, params, "blend",
                                 case["n_theta"])
-        return BodyLayout(x, vol, kind, h, _fixed_positions(x, vol, body, "blend"))
+        return BodyLayout(x, vol, kind, h, _fixed_positions(x, vol, body, "blend", params))
 
 
 def _mapped_circle(r, r0, n, centre, semi_axes, angle):

@@ -88,13 +88,13 @@ metrics ``st``, ``st_spectral``, ``cd_mean``, ``cl_mean``, ``cl_amplitude``, ``c
 ``n_periods``): the Strouhal number f D / U_inf from the upward zero crossings of C_L, means,
 amplitude and rms (of the fluctuation) over the whole lift periods after ``case.transient``; a
 note instead of numbers when the run is too short, does not shed, is not saturated, is irregular,
-has non-finite values, failed, or runs local time steps, or the output interval does not resolve
-the period.  The statistics are host-side numbers (numpy), so ``mlsph sensitivity --of cd_mean``
+has non-finite values, failed, or runs local time steps, or the sampling of the time series does
+not resolve the period.  The statistics are host-side numbers (numpy), so ``mlsph sensitivity --of cd_mean``
 is not available; the differentiable objectives are the instantaneous ``cd``/``cl``. C_L
 and C_D are recorded at the samples of the time series: every ``output.series_interval`` (a whole
 fraction of the output interval, recorded without writing the fields) or, without it, at the output
 times; the sampling must resolve the period (~6 D / U_inf at Re = 100: >= 8 samples per period are
-required; ``cylinder_re100`` samples every 0.25, ~24 per period, and writes 30 snapshots).
+required; ``cylinder_re100`` samples every 0.25, ~28 per period, and writes 30 snapshots).
 
 Diagnostics (every output time, ``timeseries.csv``) and metrics (final state), forces from the
 body's quadrature points (:meth:`~mlsph_jax.wall_integral.BoundaryIntegralWalls.coefficients`):
@@ -315,7 +315,8 @@ CYLINDER_KEYS: dict[str, Key] = {
     "transient": Key(float, 50.0, minimum=0.0, unit="s",
                      doc="unsteady statistics (Strouhal number, mean C_D, C_L amplitude and rms; summary.json "
                          "series_statistics) use the whole lift periods recorded after this time (in D / U_inf); "
-                         "the output interval t_end / output.snapshots must resolve a period (>= 8 samples)"),
+                         "the time series' sampling (output.series_interval, or the output interval) must "
+                         "resolve a period (>= 8 samples)"),
     "far_field": Key(str, "frozen", choices=FAR_FIELDS.names,
                      doc="state of the far-field rings beyond r_far: \"frozen\" keeps the free stream (SPEC "
                          "§5.8); \"characteristic\" sets the Riemann-invariant state of the nearest fluid "

@@ -209,7 +209,7 @@ def validate(cfg: Mapping) -> dict:
     why = series_per_output(t_end, snaps, interval)[1]
     if why:
         raise ConfigError(f"invalid output.series_interval={show(interval)}: {why}; allowed: "
-                          f"{series_allowed(t_end, snaps)}")
+                          f"{series_allowed(t_end, snaps, interval)}")
     if case.check is not None:
         case.check(out)
     return out

@@ -224,7 +224,9 @@ OUTPUT_KEYS: dict[str, Key] = {
                                "series_statistics), recorded without writing a snapshot; must divide the output "
                                "interval t_end / snapshots, so the samples are uniform and include the output "
                                "times. Each sample time is a step target like an output time (the step before it "
-                               "is shortened to reach it): the run equals one with outputs at every sample time. "
+                               "is shortened to reach it): the steps equal those of a run with outputs at every "
+                               "sample time (the steady-state stop still tests only the outputs, so with "
+                               "case.steady_tol > 0 the stop can differ). "
                                "With time.local_time_stepping the samples are at pseudo-times (a convergence "
                                "history)"),
     "plots": Key(bool, True, doc="write PNG plots at the end of the run"),
@@ -258,15 +260,36 @@ def series_per_output(t_end: float, snapshots: int, interval: float) -> tuple[in
     m = round(out / interval)
     if m < 1 or abs(m * interval - out) > SERIES_RTOL * out:
         return 0, (f"not a whole fraction of the output interval time.t_end / output.snapshots = {t_end!r} / "
-                   f"{snapshots} = {out:.12g}")
+                   f"{snapshots} = {out!r}")
+    if snapshots * m > MAX_SERIES_SAMPLES:
+        return 0, (f"{snapshots * m} samples (time.t_end / output.series_interval), more than "
+                   f"{MAX_SERIES_SAMPLES}: each sample ends a compiled chunk on the host")
     return m, None
 
 
-def series_allowed(t_end: float, snapshots: int) -> str:
-    """What ``output.series_interval`` may be for this end time and output count (error messages)."""
+#: the most time-series samples a run may take (each ends a compiled chunk and runs the diagnostics)
+MAX_SERIES_SAMPLES = 100_000
+
+
+def series_allowed(t_end: float, snapshots: int, interval: float | None = None) -> str:
+    """What ``output.series_interval`` may be for this end time and output count (error messages),
+    and, for an ``interval`` that divides t_end, the output counts that would take it."""
     out = t_end / snapshots
-    return (f"0 (samples at the output times) or the output interval {out:.12g} divided by a whole number "
-            f"(e.g. {out / 2:.6g}, {out / 10:.6g}); or change output.snapshots")
+    text = (f"0 (samples at the output times) or the output interval {out!r} divided by a whole number "
+            f"(e.g. {out / 2!r}, {out / 10!r}), at most {MAX_SERIES_SAMPLES} samples in all")
+    if interval and math.isfinite(interval) and interval > 0:
+        total = t_end / interval
+        n = round(total)
+        if n >= 1 and abs(n - total) <= SERIES_RTOL * total:
+            fits = [k for k in range(1, min(n, 2000) + 1) if n % k == 0 and k <= 1000]
+            near = sorted(fits, key=lambda k: abs(k - snapshots))[:3]
+            text += (f"; or keep it and set output.snapshots to a divisor of time.t_end / output.series_interval "
+                     f"= {n} (e.g. {', '.join(str(k) for k in sorted(near))})")
+        else:
+            text += "; or change output.snapshots"
+    else:
+        text += "; or change output.snapshots"
+    return text
 
 
 #: ``[run]``: execution (devices); docs/performance.md.
