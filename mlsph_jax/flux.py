@@ -28,6 +28,7 @@ import jax.numpy as jnp
 
 from .eos import EOS, Primitive
 from .registry import Registry
+from .stencil import columns
 
 FLUXES: Registry = Registry("scheme.flux", protocol=("pair_flux",), doc="numerical (Riemann) fluxes")
 WAVE_SPEEDS: Registry = Registry("scheme.wave_speed", protocol=("speed",), doc="wave-speed estimates")
@@ -208,7 +209,7 @@ def rusanov_dot_area(Um, Up, w_ij, A, n_pair, eos: EOS, params, *, wave_speed: s
     else).  Pairs with A = 0 give exactly zero.  (Array front end of
     :func:`rusanov_components`.)
     """
-    comps = lambda a: [a[..., k] for k in range(a.shape[-1])]
+    comps = columns
     out = rusanov_components(comps(Um), comps(Up), None if w_ij is None else comps(w_ij), comps(A),
                              None if n_pair is None else comps(n_pair), eos, params,
                              wave_speed=wave_speed, normal=normal)

@@ -32,6 +32,7 @@ from .approximation import rows as _rows
 from .eos import conservative_components, primitive_vector
 from .flux import local_mach, primitive_components
 from .registry import Registry
+from .stencil import columns as _cols
 from .stencil import reverse_gather
 
 RECONSTRUCTIONS: Registry = Registry("scheme.reconstruction", protocol=("midpoint_states",),
@@ -39,10 +40,6 @@ RECONSTRUCTIONS: Registry = Registry("scheme.reconstruction", protocol=("midpoin
 RECONSTRUCTION_VARIABLES: Registry = Registry("scheme.reconstruction_variables",
                                               protocol=("from_conservative", "to_conservative"),
                                               doc="variables that are reconstructed")
-
-
-def _cols(a):
-    return [a[..., k] for k in range(a.shape[-1])]
 
 
 def fitted_midpoint_states(F, geom, degree: int, relative: bool, extra=None):
@@ -64,14 +61,14 @@ def fitted_midpoint_states(F, geom, degree: int, relative: bool, extra=None):
 
     def block(s, b):
         jb = _rows(jsafe, s, b)
-        Cb = _rows(C, s, b)
+        Cb = _cols(_rows(C, s, b), axis=1)
         Fj = [c[jb] for c in Fc + Ec]
-        a = mls.stencil_sums([Cb[:, mm, :] * Fj[v] for mm in range(m) for v in range(nf)])
+        a = mls.stencil_sums([Cb[mm] * Fj[v] for mm in range(m) for v in range(nf)])
         ext = [a[mm * nf + v] for mm in range(m) for v in range(nv, nf)]
         a = [t[:, None] for t in a]                            # a_i = C_i F_S, [b, 1] each
         dx = _rows(geom.dx, s, b)
         hb = _rows(geom.h, s, b)[:, None]
-        P = mls.monomial_planes([(0.5 * dx[..., c]) / hb for c in range(dx.shape[-1])], degree)
+        P = mls.monomial_planes([(0.5 * c) / hb for c in _cols(dx)], degree)
         own = []
         for v in range(nv):
             o = a[v]

@@ -62,6 +62,7 @@ from .reconstruction import reconstruct
 from .scheme import Scheme
 from .state import Domain, Kind, Params, Particles
 from .status import Status
+from .stencil import columns as _cols
 from .stencil import flat_reverse_index
 from .viscous import diffusive_fields, pair_diffusive_flux, self_diffusive_flux, viscous_terms
 
@@ -133,10 +134,6 @@ def geometry(x, vol, nl, scheme: Scheme, domain: Domain) -> Geometry:
             | jnp.where(converged, 0, jnp.int32(Status.AREA_CORRECTION_UNCONVERGED))).astype(jnp.int32)
     return Geometry(idx, mask, rev, pair_mask, dx, A, h, coeffs, interp, bits,
                     fallback.stack(area_deg, fit_deg, n))
-
-
-def _cols(a):
-    return [a[..., k] for k in range(a.shape[-1])]
 
 
 def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme, boundary=None):
@@ -236,10 +233,10 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme, bo
             G1 = parachute.pair_flux(Fm, Fp, w_ij, A, n_pair, eos, params, scheme)
             GA = [jnp.where(high, g, g1) for g, g1 in zip(GA, G1, strict=True)]
         if fused:                                   # G - D_ij (D never order-reduced by MOOD)
-            ai = _rows(fit_flat, s, b)
-            ai = [[ai[:, mm * nc + c, None] for c in range(nc)] for mm in range(m_fit)]
-            aj = fit_flat[jb]
-            aj = [[aj[..., mm * nc + c] for c in range(nc)] for mm in range(m_fit)]
+            ai = _cols(_rows(fit_flat, s, b)[:, None, :])
+            ai = [[ai[mm * nc + c] for c in range(nc)] for mm in range(m_fit)]
+            aj = _cols(fit_flat[jb])
+            aj = [[aj[mm * nc + c] for c in range(nc)] for mm in range(m_fit)]
             DA = pair_diffusive_flux(ai, aj, _cols(_rows(geom.dx, s, b)), _rows(geom.h, s, b)[:, None],
                                      geom.h[jb], A, degree, scheme, params)
             GA = [g - dd for g, dd in zip(GA, DA, strict=True)]

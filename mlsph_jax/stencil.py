@@ -27,3 +27,14 @@ def reverse_gather(a, jsafe, rev):
     n, k = a.shape[:2]
     flat = a.reshape((n * k,) + a.shape[2:])
     return flat[flat_reverse_index(jsafe, rev, k)]
+
+
+def columns(a, axis: int = -1):
+    """``[a[..., c] for c in range(a.shape[axis])]`` (along ``axis``) as one split.
+
+    The values are the same slices; what differs is reverse mode: the transpose of a split is one
+    concatenate of the cotangents, where that of each separate index is a zero array of the whole
+    shape plus an add, i.e. cost quadratic in the number of columns (docs/performance.md,
+    "Gradients")."""
+    axis = axis % a.ndim
+    return [jnp.squeeze(c, axis) for c in jnp.split(a, a.shape[axis], axis=axis)]
