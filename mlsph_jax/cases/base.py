@@ -40,7 +40,8 @@ class Case:
     docstring is shown in the reference); ``dim``: the space dimension (``None``: any);
     ``build(cfg) -> Problem``: the builder; ``particle_count(cfg) -> (estimate, keys)``: the
     number of particles ``build`` would make, from the config alone, and the config keys that
-    set it (the ``run.max_particles`` guard; ``None``: the count is checked after building).
+    set it, or None when it cannot tell (the ``run.max_particles`` guard; without an estimate the
+    count is checked after building).
     """
 
     name: str
@@ -78,8 +79,8 @@ def register_case(name: str, keys: Mapping[str, Key], build: Callable, *, check:
     must then be empty or have ``dim`` components.  ``build(cfg)`` returns the
     :class:`~mlsph_jax.simulation.Problem` of a resolved config.  ``particle_count(cfg) ->
     (estimate, keys)``: the number of particles (fluid, walls, far field) ``build`` would make,
-    computed from the resolved config without building them, and the config keys that set it:
-    a config whose estimate exceeds ``run.max_particles`` is refused before anything is built
+    computed from the resolved config without building them, and the config keys that set it (or
+    None when it cannot tell): a config whose estimate exceeds ``run.max_particles`` is refused before anything is built
     (without it, the built problem's count is checked).  ``replace=True`` replaces a case
     registered under the same name (a notebook cell run again).
 
@@ -120,7 +121,8 @@ def build_problem(cfg: Mapping):
     is checked only here; an estimate may be a little off)."""
     case = CASES.get(cfg["case"]["name"], "case.name")
     problem = case.build(cfg)
-    keys = () if case.particle_count is None else case.particle_count(cfg)[1]
+    estimate = None if case.particle_count is None else case.particle_count(cfg)
+    keys = () if estimate is None else estimate[1]
     check_particle_limit(cfg, problem.particles.n, keys, estimated=False)
     return problem
 

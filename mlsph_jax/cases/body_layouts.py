@@ -26,9 +26,11 @@ the fluid volumes sum to N_disc h^2 - area(body), N_disc the lattice points with
 (those removed included), to the accuracy of the body polygon (tests/test_body_layouts.py).
 Frozen particles get h^2.
 
-Size: each layout's ``count(case, support) -> (estimate, keys)`` gives its particle count (fluid
-and frozen) from the config alone, before any array is built, and the config keys that set it;
-the case hands it to the general guard ``run.max_particles`` (:mod:`mlsph_jax.config.resolve`).
+Size: a layout's ``count(case, support) -> (estimate, keys)`` (optional; the three built-in ones
+have it) gives its particle count (fluid and frozen) from the config alone, before any array is
+built, and the config keys that set it; the case hands it to the general guard
+``run.max_particles`` (:mod:`mlsph_jax.config.resolve`; a layout without it is held to the limit
+after building).
 Exact for the polar layout; for the lattices the areas divided by h^2 (within a few per cent,
 tests/test_particle_limit.py).
 
@@ -69,7 +71,7 @@ SHAPE_FIELDS = ("centre", "radius", "aspect")
 
 #: Layouts around a body (the ``cylinder`` case's ``case.layout``; the kind is a label, since other
 #: cases' ``case.layout`` keys name their own, unregistered, layouts).
-BODY_LAYOUTS: Registry = Registry("body_layout", protocol=("check", "build", "count"),
+BODY_LAYOUTS: Registry = Registry("body_layout", protocol=("check", "build"),
                                   doc="particle layouts around a body in a stream (the cylinder's case.layout)")
 
 

@@ -172,12 +172,13 @@ def n_far_field_rings(cfg: Mapping) -> int:
     return far_rings(cfg["case"], lambda dx: _support_radius(cfg, dx), _NAMES)
 
 
-def particle_count(cfg: Mapping) -> tuple[int, tuple[str, ...]]:
+def particle_count(cfg: Mapping) -> tuple[int, tuple[str, ...]] | None:
     """The layout's particle count (fluid and frozen far field) and the keys that set it, from the
     config (:data:`~mlsph_jax.cases.body_layouts.BODY_LAYOUTS` ``count``; the ``run.max_particles``
-    guard)."""
+    guard); None for a user's layout without ``count``."""
     c = cfg["case"]
-    return BODY_LAYOUTS.get(c["layout"], "case.layout").count(c, lambda dx: _support_radius(cfg, dx))
+    count = getattr(BODY_LAYOUTS.get(c["layout"], "case.layout"), "count", None)
+    return None if count is None else count(c, lambda dx: _support_radius(cfg, dx))
 
 
 def check_cylinder(cfg: dict) -> None:

@@ -212,9 +212,9 @@ def validate(cfg: Mapping) -> dict:
                           f"{series_allowed(t_end, snaps, interval)}")
     if case.check is not None:
         case.check(out)
-    if case.particle_count is not None:   # before anything is built
-        count, keys = case.particle_count(out)
-        check_particle_limit(out, count, keys)
+    estimate = None if case.particle_count is None else case.particle_count(out)
+    if estimate is not None:   # before anything is built
+        check_particle_limit(out, *estimate)
     return out
 
 
