@@ -4,7 +4,7 @@
     mlsph validate CONFIG [--set KEY=VALUE ...]
     mlsph cases
     mlsph init CASE [--out FILE.toml]
-    mlsph sensitivity CONFIG --wrt KEY [KEY ...] --of METRIC [--check-fd] [--out DIR] [--set ...]
+    mlsph sensitivity CONFIG --wrt KEY [KEY ...] --of METRIC [--window T0 T1] [--check-fd] [--out DIR] [--set ...]
     mlsph calibrate CONFIG --fit KEY [KEY ...] --target FILE.csv [--steps N] [--lr X] [--out DIR] [--set ...]
     mlsph --version
 
@@ -95,7 +95,12 @@ def _parser() -> argparse.ArgumentParser:
                         help="d METRIC / d parameter of a whole run (reverse-mode autodiff)")
     s_.add_argument("--wrt", nargs="+", required=True, metavar="KEY", help="parameters, e.g. physics.mu eos.c0")
     s_.add_argument("--of", required=True, metavar="METRIC",
-                    help="objective, e.g. ke_final (an unknown name lists them)")
+                    help="objective, e.g. ke_final, cd (a differentiable metric at t_end), cd_mean / cl_rms (time "
+                         "averages over --window); an unknown name lists them")
+    s_.add_argument("--window", nargs=2, type=float, default=None, metavar=("T_START", "T_END"),
+                    help="time window of a time-averaged objective (<name>_mean, <name>_rms): the trapezoidal "
+                         "average over the run's steps in [T_START, T_END], 0 <= T_START < T_END <= t_end "
+                         "(default: the whole run, 0 to t_end)")
     s_.add_argument("--check-fd", action="store_true", help="compare with central finite differences")
     s_.add_argument("--fd-rel", type=float, default=1e-5, help="relative finite-difference step")
     c_ = sub.add_parser("calibrate", parents=[diff_opts], help="fit parameters to observed time series (optax)")
@@ -297,10 +302,11 @@ def cmd_sensitivity(args) -> int:
     t0 = time.perf_counter()
     # every forward run is checked (a failure raises SimulationError: exit 1; an --n-steps above the
     # CFL limit of time.cfl is refused before running: exit 2)
-    res = sensitivity(problem, args.wrt, args.of, check_fd=args.check_fd, fd_rel=args.fd_rel,
+    res = sensitivity(problem, args.wrt, args.of, check_fd=args.check_fd, fd_rel=args.fd_rel, window=args.window,
                       **_cfl_kw(cfg), **_diff_kw(args))
     res["wall_time_s"] = time.perf_counter() - t0
-    print(f"{args.of} = {res['value']:.10g} after {res['n_steps']} steps of dt = {res['dt']:.4g}")
+    over = f" over t in [{res['window'][0]:.6g}, {res['window'][1]:.6g}]" if "window" in res else ""
+    print(f"{args.of} = {res['value']:.10g}{over} after {res['n_steps']} steps of dt = {res['dt']:.4g}")
     for k, e in res["gradients"].items():
         line = f"  d {args.of} / d {k} = {e['gradient']}"
         if args.check_fd:

@@ -42,6 +42,17 @@ Reverse-mode memory (``checkpoint``):
   x state) for about one extra forward pass of work.
 
 ``policy`` is passed to ``jax.checkpoint`` (e.g. ``jax.checkpoint_policies.dots_saveable``).
+
+Time averages (``average``, ``window``): the run also accumulates, inside the scan, the time
+average over the window [t_start, t_end] of each scalar of ``average(particles, t, params)`` and
+of its square (``SimOutput.averages[name] = {"mean": ..., "mean_square": ...}``).  The rule is
+the trapezoidal rule on the step grid: the integral over the window of the piecewise-linear
+interpolant of the values at every step time t_k = k dt, divided by the window's length
+(:func:`window_weights`; a window end between two steps cuts the linear piece there, so any
+window in [0, t_end] is exact for a quantity linear in t).  The weights are fixed on the host
+before tracing; a step outside the window skips the evaluation (``lax.cond``), so the cost is one
+evaluation of ``average`` per step inside the window and nothing else changes: no host
+synchronisation, one compilation, and without ``average`` the scan is the one above.
 """
 
 from __future__ import annotations
@@ -82,6 +93,9 @@ class SimOutput:
     failed_step: jax.Array
     failed_time: jax.Array
     bad_particle: jax.Array
+    #: ``{name: {"mean": ..., "mean_square": ...}}``: the time averages over the window of the
+    #: quantities of ``make_simulate(..., average=...)`` (module docstring; empty without it).
+    averages: dict = dataclasses.field(default_factory=dict)
 
     @property
     def ok(self) -> jax.Array:
@@ -116,7 +130,8 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
                   checkpoint: str = "nested", segment: int | None = None, policy=None,
                   record_every: int = 1, diagnostics: Callable | None = None,
                   headroom: float = 1.6, cfl: float = 0.3, cfl_viscous: float = 0.125,
-                  nspec=None, remat_blocks: bool = True) -> Callable[[Params, Particles], SimOutput]:
+                  nspec=None, remat_blocks: bool = True, average: Callable | None = None,
+                  window: tuple[float, float] | None = None) -> Callable[[Params, Particles], SimOutput]:
     """Build ``simulate(params, particles) -> SimOutput`` for ``problem`` (module docstring).
 
     ``diagnostics(particles, t, params) -> dict`` of differentiable scalars recorded every
@@ -136,7 +151,15 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
     stencil passes in reverse mode (:func:`mlsph_jax.approximation.block_remat`; same values,
     about half the cost of a right-hand side's gradient); ``False`` stores the blocks'
     intermediates as before.
+
+    ``average(particles, t, params) -> dict`` of differentiable scalars: their time averages (and
+    those of their squares) over ``window`` = (t_start, t_end) (default: the whole run, (0,
+    t_end)) are accumulated in the run and returned in ``SimOutput.averages`` (module docstring,
+    "Time averages").  A window outside [0, t_end] or empty is an InputError naming it.
     """
+    options = dict(n_steps=n_steps, t_end=t_end, checkpoint=checkpoint, segment=segment, policy=policy,
+                   record_every=record_every, diagnostics=diagnostics, headroom=headroom, cfl=cfl,
+                   cfl_viscous=cfl_viscous, nspec=nspec, remat_blocks=remat_blocks)
     if checkpoint not in CHECKPOINTS:
         raise InputError(f"invalid checkpoint={checkpoint!r}; allowed: {', '.join(CHECKPOINTS)}")
     refuse_in(problem, "the differentiated runs (mlsph_jax.differentiable, mlsph sensitivity / calibrate)")
@@ -148,6 +171,10 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
                          "with n_steps a multiple of record_every")
     check_fixed_step(problem, n_steps, t_end, cfl=cfl, cfl_viscous=cfl_viscous)
     dt = t_end / n_steps
+    if window is not None and average is None:
+        raise InputError(f"invalid window={window!r} without average=: the window applies to the time averages "
+                         "only; allowed: window=None, or an average= function")
+    weights = None if average is None else jnp.asarray(window_weights(n_steps, dt, window))
     scheme, boundary = problem.scheme, problem.boundary
     setup = setup_run(problem, headroom=headroom, nspec=nspec)
     extra = getattr(problem, "differentiable_diagnostics", None)
@@ -177,10 +204,23 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
         st0 = st0 | setup.initial_status()
         failed0 = jnp.where(st0 != 0, 0, -1).astype(jnp.int32)
         # carry: (state, steps taken, status, first failing step, first offending particle)
-        carry0 = (particles, jnp.asarray(0, jnp.int32), st0, failed0, bad0)
+        acc0 = {}
+        if average is not None:   # the window's first point (t = 0 has weight 0 unless the window starts there)
+            acc0 = {n: (weights[0] * v, weights[0] * v * v) for n, v in average(particles, 0.0, params).items()}
+        carry0 = (particles, jnp.asarray(0, jnp.int32), st0, failed0, bad0, acc0)
+
+        def accumulate(acc, p, k):
+            """Add step k's weighted value (module docstring, "Time averages"); skipped outside the window."""
+            w = weights[k]
+
+            def add(acc):
+                vals = average(p, k * dt, params)
+                return {n: (a + w * vals[n], b + w * vals[n] * vals[n]) for n, (a, b) in acc.items()}
+
+            return jax.lax.cond(w != 0, add, lambda a: a, acc)
 
         def step(carry, _):
-            p, k, st, failed, bad = carry
+            p, k, st, failed, bad, acc = carry
             p2, ovf, stats = ssp_rk3_step(p, params, dt, scheme, geom_fn, bnd)
             st2, bad2 = step_status(p, p2, params, scheme, dt, ovf, stats, dt_fixed=True, cfl=cfl,
                                     cfl_viscous=cfl_viscous, boundary=bnd)
@@ -188,8 +228,10 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
             commit = alive & (st2 == 0)   # a failing step is not committed; later steps are no-ops
             p = jax.tree_util.tree_map(lambda a, b: jnp.where(commit, a, b), p2, p)
             new_fail = alive & (st2 != 0)
+            if average is not None:
+                acc = accumulate(acc, p, k + 1)
             return (p, k + 1, jnp.where(alive, st2, st), jnp.where(new_fail, k + 1, failed),
-                    jnp.where(new_fail, bad2, bad)), None
+                    jnp.where(new_fail, bad2, bad), acc), None
 
         if checkpoint in ("step", "nested"):
             step = jax.checkpoint(step, policy=policy)
@@ -205,15 +247,16 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
 
             segment_fn = jax.checkpoint(segment_fn, policy=policy)
             ks = jnp.arange(n_rec).reshape(n_rec // blocks_per_seg, blocks_per_seg)
-            (pf, _, st, failed, bad), rec = jax.lax.scan(segment_fn, carry0, ks)
+            (pf, _, st, failed, bad, acc), rec = jax.lax.scan(segment_fn, carry0, ks)
             rec = jax.tree_util.tree_map(lambda a: a.reshape((n_rec,) + a.shape[2:]), rec)
         else:
-            (pf, _, st, failed, bad), rec = jax.lax.scan(block, carry0, jnp.arange(n_rec))
+            (pf, _, st, failed, bad, acc), rec = jax.lax.scan(block, carry0, jnp.arange(n_rec))
         first = diag(particles, 0.0, params)
         series = {k: jnp.concatenate([jnp.asarray(first[k])[None], rec[k]]) for k in rec}
         times = jnp.arange(n_rec + 1) * (record_every * dt)
         failed_time = jnp.maximum(failed - 1, 0) * dt
-        return SimOutput(pf, series, times, st, failed, failed_time, bad)
+        averages = {n: {"mean": a, "mean_square": b} for n, (a, b) in acc.items()}
+        return SimOutput(pf, series, times, st, failed, failed_time, bad, averages)
 
     simulate.n_steps = n_steps
     simulate.dt = dt
@@ -222,7 +265,47 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
     simulate.problem = problem
     simulate.cfl = cfl
     simulate.cfl_viscous = cfl_viscous
+    simulate.diagnostics = diag
+    simulate.window = None if average is None else _window(window, n_steps * dt)
+    simulate.options = {**options, "n_steps": n_steps, "nspec": setup.nspec}
     return simulate
+
+
+def _window(window, t_end: float) -> tuple[float, float]:
+    """The checked window (t_start, t_end) of a time average (default the whole run)."""
+    if window is None:
+        return 0.0, float(t_end)
+    try:
+        a, b = (float(v) for v in window)
+    except (TypeError, ValueError):
+        raise InputError(f"invalid window (--window) {window!r}; allowed: two numbers T_START T_END with "
+                         f"0 <= T_START < T_END <= {t_end:.10g} (the run's end)") from None
+    tol = 1e-12 * max(abs(t_end), 1.0)
+    if not (math.isfinite(a) and math.isfinite(b)) or a < -tol or b > t_end + tol or not b > a:
+        why = ("empty (T_END <= T_START)" if math.isfinite(a) and math.isfinite(b) and b <= a
+               else "outside the run [0, t_end]")
+        raise InputError(f"invalid window (--window) = ({a:.10g}, {b:.10g}): {why}; allowed: "
+                         f"0 <= T_START < T_END <= {t_end:.10g} (the run's end time, n_steps x dt)")
+    return max(a, 0.0), min(b, float(t_end))
+
+
+def window_weights(n_steps: int, dt: float, window=None) -> np.ndarray:
+    """Weights w_k (k = 0..n_steps) with sum_k w_k f(t_k) = (1 / (b - a)) * integral over [a, b]
+    of the piecewise-linear interpolant of f at t_k = k dt (the trapezoidal rule on the step
+    grid, a window end inside a step cutting its linear piece); ``window`` = (a, b), default the
+    whole run.  They sum to 1."""
+    a, b = _window(window, n_steps * dt)
+    w = np.zeros(n_steps + 1)
+    k0 = min(int(math.floor(a / dt)), n_steps - 1)
+    k1 = min(int(math.ceil(b / dt)), n_steps)
+    for k in range(k0, k1):          # the pieces [t_k, t_k+1] that overlap [a, b]
+        tk, tk1 = k * dt, (k + 1) * dt
+        lo, hi = max(a, tk), min(b, tk1)
+        if hi <= lo:
+            continue
+        w[k] += ((tk1 - lo) ** 2 - (tk1 - hi) ** 2) / (2 * dt)
+        w[k + 1] += ((hi - tk) ** 2 - (lo - tk) ** 2) / (2 * dt)
+    return w / (b - a)
 
 
 def _segment(n_steps: int, record_every: int) -> int:

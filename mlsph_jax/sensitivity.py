@@ -3,10 +3,19 @@
 Objectives (``--of``) are differentiable scalars of a run made by
 :func:`mlsph_jax.differentiable.make_simulate`:
 
-* ``<diagnostic>_final`` and ``<diagnostic>_mean`` for every recorded diagnostic (``ke``,
-  ``mass``, ``momentum_x``, ... and the case's own, see :func:`objective_names`);
-* the case's differentiable metrics (``Problem.differentiable_metrics(particles, t, params)``),
-  e.g. ``ke_rel_error`` for Taylor-Green.
+* ``<diagnostic>_final`` for every recorded diagnostic (``ke``, ``mass``, ``momentum_x``, ...
+  and the case's own, see :func:`objective_names`);
+* the case's differentiable metrics (``Problem.differentiable_metrics(particles, t, params)``)
+  at the end of the run, e.g. ``ke_rel_error`` for Taylor-Green, ``cd`` / ``cl`` for the cylinder;
+* time averages (:data:`TIME_AVERAGES`) of every diagnostic and every differentiable metric over
+  a window [t_start, t_end] of the run (``window``, ``mlsph sensitivity --window T_START T_END``;
+  default the whole run [0, t_end]): ``<name>_mean`` = (1 / (t_end - t_start)) * integral of the
+  quantity over the window, and ``<name>_rms`` = the root mean square of its fluctuation about
+  that mean, sqrt(mean(q^2) - mean(q)^2), e.g. ``cd_mean``, ``cl_mean``, ``cl_rms``, ``ke_mean``.
+  They are accumulated inside the differentiated run at every step (the trapezoidal rule on the
+  step grid, :func:`mlsph_jax.differentiable.window_weights`), not from the recorded series, so
+  they do not depend on ``record_every``.  The rms has no derivative where the fluctuation is
+  zero (a steady or mirror-symmetric flow: the square root at 0).
 
 :func:`sensitivity` returns d objective / d parameter for the requested parameters (dotted keys
 of the parameter pytree, e.g. ``physics.mu``, ``eos.c0``, ``boundary.wall_velocity``) and, with
@@ -57,34 +66,70 @@ def initial_particles(problem, params: Params):
     return problem.particles if problem.particles_at is None else problem.particles_at(params)
 
 
+#: The time averages over a window of the run that every diagnostic and differentiable metric
+#: has as an objective (``<name>_<average>``; module docstring): the mean and the rms of the
+#: fluctuation about it.
+TIME_AVERAGES = ("mean", "rms")
+
+
+def time_average(avg: Mapping, reduction: str) -> jax.Array:
+    """The time average ``reduction`` (one of :data:`TIME_AVERAGES`) of a quantity from its
+    accumulated ``{"mean": <q>, "mean_square": <q^2>}`` (``SimOutput.averages[name]``): ``mean``
+    is <q>; ``rms`` is sqrt(<q^2> - <q>^2), the rms of the fluctuation about the window's mean
+    (clipped at 0 against round-off; no derivative where the fluctuation vanishes)."""
+    m, m2 = avg["mean"], avg["mean_square"]
+    return m if reduction == "mean" else jnp.sqrt(jnp.maximum(m2 - m * m, 0.0))
+
+
+def _objectives(problem, simulate) -> dict[str, tuple[str, str, str]]:
+    """The objectives of ``problem``: name -> (source, quantity, reduction), source ``"series"``
+    (a recorded diagnostic) or ``"metric"`` (a differentiable metric), reduction ``"final"`` or
+    one of :data:`TIME_AVERAGES`.  The only list of objective names."""
+    series = list(jax.eval_shape(lambda p: simulate.diagnostics(p, 0.0, problem.params), problem.particles))
+    out = {f"{k}_final": ("series", k, "final") for k in series}
+    dm = getattr(problem, "differentiable_metrics", None)
+    metrics = [] if dm is None else list(jax.eval_shape(lambda p: dm(p, 0.0, problem.params), problem.particles))
+    out.update({m: ("metric", m, "final") for m in metrics})
+    for src, names in (("series", series), ("metric", metrics)):
+        out.update({f"{k}_{a}": (src, k, a) for k in names for a in TIME_AVERAGES})
+    return out
+
+
 def objective_names(problem, simulate) -> list[str]:
     """Objectives ``--of`` accepts for ``problem``."""
-    out = jax.eval_shape(simulate, problem.params, problem.particles)
-    names = [f"{k}_{s}" for k in out.series for s in ("final", "mean")]
-    dm = getattr(problem, "differentiable_metrics", None)
-    if dm is not None:
-        names += list(jax.eval_shape(lambda p: dm(p, 0.0, problem.params), problem.particles))
-    return names
+    return list(_objectives(problem, simulate))
 
 
-def make_objective(problem, simulate, of: str):
-    """``f(params) -> (scalar, SimOutput)`` for the objective named ``of``."""
-    names = objective_names(problem, simulate)
-    if of not in names:
-        raise InputError(f"invalid --of {of!r}; allowed: {', '.join(names)}")
+def make_objective(problem, simulate, of: str, window=None):
+    """``f(params) -> (scalar, SimOutput)`` for the objective named ``of``; ``window`` =
+    (t_start, t_end) of a time average (default the whole run; refused for other objectives)."""
+    objectives = _objectives(problem, simulate)
+    if of not in objectives:
+        raise InputError(f"invalid --of {of!r}; allowed: {', '.join(objectives)}")
+    src, q, red = objectives[of]
     dm = getattr(problem, "differentiable_metrics", None)
     t_end = simulate.n_steps * simulate.dt
+    if red == "final":
+        if window is not None:
+            raise InputError(f"invalid --window {tuple(window)!r} with --of {of!r}: a window applies to the time "
+                             f"averages only; allowed: no window, or --of {q}_mean / {q}_rms "
+                             f"({', '.join(TIME_AVERAGES)})")
+        sim = simulate
+    else:
+        def average(p, t, params):   # only the quantity asked for is evaluated at every step
+            return {q: (simulate.diagnostics if src == "series" else dm)(p, t, params)[q]}
+
+        sim = make_simulate(problem, **simulate.options, average=average, window=window)
 
     def f(params):
-        out = simulate(params, initial_particles(problem, params))
-        if of.endswith("_final") and of[:-6] in out.series:
-            val = out.series[of[:-6]][-1]
-        elif of.endswith("_mean") and of[:-5] in out.series:
-            val = jnp.mean(out.series[of[:-5]])
+        out = sim(params, initial_particles(problem, params))
+        if red == "final":
+            val = out.series[q][-1] if src == "series" else dm(out.particles, t_end, params)[q]
         else:
-            val = dm(out.particles, t_end, params)[of]
+            val = time_average(out.averages[q], red)
         return val, out
 
+    f.window = sim.window
     return f
 
 
@@ -96,11 +141,12 @@ def _check_wrt(params: Params, wrt: Sequence[str]):
 
 
 def sensitivity(problem, wrt: Sequence[str], of: str, check_fd: bool = False, fd_rel: float = 1e-5,
-                **simulate_kw) -> dict:
-    """Gradient of objective ``of`` with respect to each parameter in ``wrt`` (module doc)."""
+                window=None, **simulate_kw) -> dict:
+    """Gradient of objective ``of`` with respect to each parameter in ``wrt`` (module doc);
+    ``window`` = (t_start, t_end) of a time-averaged objective (default the whole run)."""
     _check_wrt(problem.params, wrt)
     simulate = _simulate_for(problem, **simulate_kw)
-    f = make_objective(problem, simulate, of)
+    f = make_objective(problem, simulate, of, window=window)
     theta = {k: jnp.asarray(problem.params[k], jnp.float64) for k in wrt}
 
     def g(th):
@@ -113,6 +159,8 @@ def sensitivity(problem, wrt: Sequence[str], of: str, check_fd: bool = False, fd
     check(out, simulate, problem.params)
     result = {"objective": of, "value": float(value), "n_steps": simulate.n_steps, "dt": simulate.dt,
               "gradients": {}}
+    if f.window is not None:
+        result["window"] = list(f.window)
     g_jit = jax.jit(g) if check_fd else None
 
     def fj(th):   # a finite-difference run, checked like the others

@@ -21,6 +21,7 @@ import re
 from collections.abc import Callable, Mapping
 
 from ..config import check_defaults_override
+from ..config.resolve import check_particle_limit
 from ..errors import InputError
 from ..registry import Registry
 from ..schema import Key
@@ -37,7 +38,10 @@ class Case:
     per-case defaults of the other tables (dotted keys, checked at registration); ``check(cfg)``:
     cross-checks of the resolved config, raising :class:`~mlsph_jax.errors.ConfigError` (its
     docstring is shown in the reference); ``dim``: the space dimension (``None``: any);
-    ``build(cfg) -> Problem``: the builder.
+    ``build(cfg) -> Problem``: the builder; ``particle_count(cfg) -> (estimate, keys)``: the
+    number of particles ``build`` would make, from the config alone, and the config keys that
+    set it, or None when it cannot tell (the ``run.max_particles`` guard; without an estimate the
+    count is checked after building).
     """
 
     name: str
@@ -47,6 +51,8 @@ class Case:
     defaults_override: Mapping[str, object] = dataclasses.field(default_factory=dict, repr=False)
     doc: str = ""
     dim: int | None = None
+    particle_count: Callable[[dict], tuple[int, tuple[str, ...]]] | None = dataclasses.field(default=None,
+                                                                                             repr=False)
 
     @property
     def description(self) -> str:
@@ -61,7 +67,7 @@ CASES: Registry[Case] = Registry("case.name", protocol=("build", "keys", "check"
 
 def register_case(name: str, keys: Mapping[str, Key], build: Callable, *, check: Callable[[dict], None] | None = None,
                   defaults_override: Mapping[str, object] | None = None, doc: str = "",
-                  dim: int | None = None, replace: bool = False) -> Case:
+                  dim: int | None = None, particle_count: Callable | None = None, replace: bool = False) -> Case:
     """Register the case ``name`` and return its :class:`Case`.
 
     ``keys`` are the case's own ``[case]`` keys (``name`` is added by the config).
@@ -71,8 +77,12 @@ def register_case(name: str, keys: Mapping[str, Key], build: Callable, *, check:
     the resolved, type-checked config and raises :class:`~mlsph_jax.errors.ConfigError` for
     cross-key problems.  ``dim`` (1, 2 or 3) fixes the space dimension: ``physics.body_force``
     must then be empty or have ``dim`` components.  ``build(cfg)`` returns the
-    :class:`~mlsph_jax.simulation.Problem` of a resolved config.  ``replace=True`` replaces a
-    case registered under the same name (a notebook cell run again).
+    :class:`~mlsph_jax.simulation.Problem` of a resolved config.  ``particle_count(cfg) ->
+    (estimate, keys)``: the number of particles (fluid, walls, far field) ``build`` would make,
+    computed from the resolved config without building them, and the config keys that set it (or
+    None when it cannot tell): a config whose estimate exceeds ``run.max_particles`` is refused before anything is built
+    (without it, the built problem's count is checked).  ``replace=True`` replaces a case
+    registered under the same name (a notebook cell run again).
 
     Raises :class:`~mlsph_jax.errors.InputError` for a bad name, a taken name (naming the
     registered ones; see ``replace``), a key that is not a :class:`Key` or an unknown ``defaults_override`` key,
@@ -96,11 +106,23 @@ def register_case(name: str, keys: Mapping[str, Key], build: Callable, *, check:
             raise InputError(f"case {name!r}: key {k!r} must be a Key, got {type(key).__name__}")
     if dim not in (None, 1, 2, 3):
         raise InputError(f"case {name!r}: dim={dim!r}; allowed: None, 1, 2, 3")
+    if particle_count is not None and not callable(particle_count):
+        raise InputError(f"case {name!r}: particle_count={particle_count!r}; allowed: None or a function "
+                         "particle_count(cfg) -> (estimate, keys)")
     case = Case(name=name, build=build, keys=keys, check=check,
-                defaults_override=check_defaults_override(name, defaults_override or {}), doc=doc, dim=dim)
+                defaults_override=check_defaults_override(name, defaults_override or {}), doc=doc, dim=dim,
+                particle_count=particle_count)
     return CASES.register(name, case, replace=replace)
 
 
 def build_problem(cfg: Mapping):
-    """The :class:`~mlsph_jax.simulation.Problem` of a resolved, validated config."""
-    return CASES.get(cfg["case"]["name"], "case.name").build(cfg)
+    """The :class:`~mlsph_jax.simulation.Problem` of a resolved, validated config.  The built
+    particle count is held to ``run.max_particles`` once more (a case without ``particle_count``
+    is checked only here; an estimate may be a little off)."""
+    case = CASES.get(cfg["case"]["name"], "case.name")
+    problem = case.build(cfg)
+    estimate = None if case.particle_count is None else case.particle_count(cfg)
+    keys = () if estimate is None else estimate[1]
+    check_particle_limit(cfg, problem.particles.n, keys, estimated=False)
+    return problem
+

@@ -180,8 +180,18 @@ def build(cfg: Mapping) -> Problem:
                    config=cfg, description=_title(cfg, len(xf)))
 
 
+def particle_count(cfg: Mapping) -> tuple[int, tuple[str, ...]]:
+    """pi R^2 / dx^2 fluid particles and the frozen rings (as :func:`build`: ceil(kappa beta
+    sqrt(V_max) / dr) + 1 rings of width dr ~ dx), all by area / dx^2; sqrt(V_max) taken as 1.5 dx,
+    an upper bound (measured 1.07 dx on the rings, 1.42 dx on the Delaunay layouts), so the
+    estimate is an upper bound within ~20 % (tests/test_particle_limit.py)."""
+    c, s = cfg["case"], scheme_from_config(cfg)
+    r_out = c["radius"] + (math.ceil(1.5 * s.support * s.beta) + 1) * c["dx"]
+    return round(math.pi * r_out ** 2 / c["dx"] ** 2), ("case.radius", "case.dx")
+
+
 BLAST_2D = register_case(
-    "blast_2d", BLAST_2D_KEYS, build, check=check_blast_2d, dim=2,
+    "blast_2d", BLAST_2D_KEYS, build, check=check_blast_2d, dim=2, particle_count=particle_count,
     defaults_override={"scheme.frame": "lagrangian", "eos.kind": "tait", "eos.rho0": 1000.0,
                        "eos.c0": 1466.0, "time.t_end": 1e-5},
     doc="Two-dimensional blast explosion (cylindrical Tait shock tube, thesis §3.7.2): a disc "

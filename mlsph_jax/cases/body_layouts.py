@@ -26,6 +26,14 @@ the fluid volumes sum to N_disc h^2 - area(body), N_disc the lattice points with
 (those removed included), to the accuracy of the body polygon (tests/test_body_layouts.py).
 Frozen particles get h^2.
 
+Size: a layout's ``count(case, support) -> (estimate, keys)`` (optional; the three built-in ones
+have it) gives its particle count (fluid and frozen) from the config alone, before any array is
+built, and the config keys that set it; the case hands it to the general guard
+``run.max_particles`` (:mod:`mlsph_jax.config.resolve`; a layout without it is held to the limit
+after building).
+Exact for the polar layout; for the lattices the areas divided by h^2 (within a few per cent,
+tests/test_particle_limit.py).
+
 Shape derivatives: the lattice is cut once at set-up, so its particle set and the Voronoi
 volumes change discontinuously with the body; the lattice layouts do not follow the body's
 parameters, and differentiating with respect to ``geometry.body.{centre, radius, aspect}`` on
@@ -248,6 +256,13 @@ class Polar:
         x, vol = (np.asarray(a) for a in positions_at(params))
         return BodyLayout(x, vol, kind, float("nan"), positions_at, float(lay.edges[-1]))
 
+    @staticmethod
+    def count(case: Mapping, support: Callable[[float], float]) -> tuple[int, tuple[str, ...]]:
+        """n_theta x (fluid rings + frozen rings), exact."""
+        names = ("case.radius", "case.n_theta", "case.r_far")
+        n_rings = len(polar_ring_edges(case["radius"], case["n_theta"], case["r_far"], names=names)[0]) - 1
+        return case["n_theta"] * (n_rings + far_rings(case, support, names)), names
+
 
 def far_rings(case: Mapping, support: Callable[[float], float], names) -> int:
     """Frozen rings beyond ``r_far`` of the polar layout: the fewest whose widths (the geometric
@@ -292,14 +307,25 @@ def blend_edges(case: Mapping) -> np.ndarray:
     return R * (rb / R) ** (np.arange(n + 1) / n)
 
 
+def _ring_scale(case: Mapping) -> float:
+    """(a + b) / 2R: the scale of an ellipse's mapped rings against the circle's (1 for a circle)."""
+    if case["body"] != "ellipse":
+        return 1.0
+    return 0.5 * (math.sqrt(case["aspect"]) + 1.0 / math.sqrt(case["aspect"]))
+
+
 def blend_spacing(case: Mapping) -> float:
     """h of the ``blend`` layout: sqrt(V) of the outermost ring's particles of the circle's rings
     ending at ``blend_radius`` (an ellipse's mapped rings are scaled by (a + b) / 2R)."""
     edges = blend_edges(case)
-    s = 1.0
-    if case["body"] == "ellipse":
-        s = 0.5 * (math.sqrt(case["aspect"]) + 1.0 / math.sqrt(case["aspect"]))
-    return s * math.sqrt(0.5 * (edges[-1] ** 2 - edges[-2] ** 2) * 2.0 * math.pi / case["n_theta"])
+    return _ring_scale(case) * math.sqrt(0.5 * (edges[-1] ** 2 - edges[-2] ** 2) * 2.0 * math.pi / case["n_theta"])
+
+
+def _lattice_count(case: Mapping, h: float, r_in: float, support: Callable[[float], float]) -> int:
+    """Lattice points of spacing ``h`` in the annulus r_in < r < r_far (fluid) and out to r_far plus
+    the frozen reach support(h) + h: the areas divided by h^2."""
+    r_out = case["r_far"] + support(h) + h
+    return round(math.pi * (r_out ** 2 - r_in ** 2) / (h * h))
 
 
 def _far_problems(case, h, support) -> list[str]:
@@ -338,6 +364,13 @@ class Cartesian:
         x, vol, kind = _finish(cand[keep], _frozen_lattice(pts, r_far, reach), h, body, params, "cartesian",
                                 case["lattice_ratio"])
         return BodyLayout(x, vol, kind, h, _fixed_positions(x, vol, body, "cartesian", params))
+
+    @staticmethod
+    def count(case: Mapping, support: Callable[[float], float]) -> tuple[int, tuple[str, ...]]:
+        """The lattice over the disc of r_far plus the frozen reach, less the body's area (an
+        equal-area radius for the ellipse)."""
+        return (_lattice_count(case, lattice_spacing(case), case["radius"], support),
+                ("case.layout", "case.r_far", "case.lattice_ratio", "case.n_theta", "case.radius"))
 
 
 class Blend:
@@ -378,6 +411,14 @@ class Blend:
         x, vol, kind = _finish(fluid, _frozen_lattice(pts, r_far, reach), h, body, params, "blend",
                                 case["n_theta"])
         return BodyLayout(x, vol, kind, h, _fixed_positions(x, vol, body, "blend", params))
+
+    @staticmethod
+    def count(case: Mapping, support: Callable[[float], float]) -> tuple[int, tuple[str, ...]]:
+        """n_theta x the rings to blend_radius, and the lattice beyond it (plus the frozen reach)."""
+        rings = case["n_theta"] * (len(blend_edges(case)) - 1)
+        rb = case["blend_radius"] * _ring_scale(case)
+        return (rings + _lattice_count(case, blend_spacing(case), rb, support),
+                ("case.layout", "case.r_far", "case.blend_radius", "case.n_theta", "case.radius"))
 
 
 def _mapped_circle(r, r0, n, centre, semi_axes, angle):

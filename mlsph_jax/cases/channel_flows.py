@@ -64,7 +64,7 @@ from ..schema import Key, join_problems, show
 from ..simulation import Problem
 from ..state import Domain, Kind, Params, Particles, make_particles
 from .base import register_case
-from .common import params_from_config, scheme_from_config, setup_walls, walls_key, walls_problems
+from .common import params_from_config, scheme_from_config, setup_walls, support_layers, walls_key, walls_problems
 
 # --- config schema: the [case] keys and cross-checks (mlsph_jax.config validates with them) ---------
 
@@ -235,8 +235,17 @@ def build_poiseuille(cfg: Mapping) -> Problem:
     return _build(cfg)
 
 
+def particle_count(cfg: Mapping) -> tuple[int, tuple[str, ...]]:
+    """(nx + the frozen end columns) x ny, and with mirror ghosts ceil(kappa beta) layers on each
+    plate (an upper bound)."""
+    c, m = cfg["case"], support_layers(cfg)
+    cols = c["nx"] + (2 * (m + 1) if c["inlet"] != 0.0 else 0)
+    rows = c["ny"] + (2 * m if c["walls"] == "mirror_ghosts" else 0)
+    return cols * rows, ("case.nx", "case.ny", "case.walls")
+
+
 COUETTE = register_case(
-    "couette", _channel_keys(1.0), build_couette, check=check_channel, dim=2,
+    "couette", _channel_keys(1.0), build_couette, check=check_channel, dim=2, particle_count=particle_count,
     defaults_override={"eos.kind": "tait", "eos.rho0": 1.0, "eos.c0": 10.0, "physics.mu": 0.1,
                        "time.t_end": 10.0, "output.snapshots": 20},
     doc="Start-up Couette flow (thesis §3.7.4): fluid at rest between two plates `gap` apart, "
@@ -244,7 +253,7 @@ COUETTE = register_case(
         "plates, compared with the exact series solution (thesis eq. 3.20).")
 
 POISEUILLE = register_case(
-    "poiseuille", _channel_keys(0.0), build_poiseuille, check=check_channel, dim=2,
+    "poiseuille", _channel_keys(0.0), build_poiseuille, check=check_channel, dim=2, particle_count=particle_count,
     defaults_override={"eos.kind": "tait", "eos.rho0": 1.0, "eos.c0": 10.0, "physics.mu": 0.1,
                        "physics.body_force": [0.8, 0.0], "time.t_end": 10.0, "output.snapshots": 20},
     doc="Start-up Poiseuille flow (thesis §3.7.4): fluid at rest between two fixed plates "

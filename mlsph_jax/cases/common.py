@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Mapping
 
 import jax.numpy as jnp
@@ -24,6 +25,13 @@ def params_from_config(cfg: Mapping) -> Params:
     if phys.get("body_force"):
         vals["physics.body_force"] = jnp.asarray(phys["body_force"], jnp.float64)
     return Params(vals)
+
+
+def support_layers(cfg: Mapping) -> int:
+    """Particle layers within the support radius kappa beta dx of a lattice of spacing dx (the
+    mirror-ghost layers of a wall, the frozen columns of an end): ceil(kappa beta)."""
+    s = scheme_from_config(cfg)
+    return math.ceil(s.support * s.beta)
 
 
 def scheme_from_config(cfg: Mapping) -> Scheme:

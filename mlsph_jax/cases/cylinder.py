@@ -89,8 +89,11 @@ metrics ``st``, ``st_spectral``, ``cd_mean``, ``cl_mean``, ``cl_amplitude``, ``c
 amplitude and rms (of the fluctuation) over the whole lift periods after ``case.transient``; a
 note instead of numbers when the run is too short, does not shed, is not saturated, is irregular,
 has non-finite values, failed, or runs local time steps, or the sampling of the time series does
-not resolve the period.  The statistics are host-side numbers (numpy), so ``mlsph sensitivity --of cd_mean``
-is not available; the differentiable objectives are the instantaneous ``cd``/``cl``. C_L
+not resolve the period.  The statistics are host-side numbers (numpy) over whole periods; their
+differentiable counterparts are the objectives ``cd_mean``, ``cl_mean``, ``cl_rms`` (and the parts'
+``*_mean`` / ``*_rms``) of ``mlsph sensitivity --window T_START T_END``: time averages over a fixed
+window accumulated at every step of the differentiated run (:mod:`mlsph_jax.sensitivity`,
+decision 73). C_L
 and C_D are recorded at the samples of the time series: every ``output.series_interval`` (a whole
 fraction of the output interval, recorded without writing the fields) or, without it, at the output
 times; the sampling must resolve the period (~6 D / U_inf at Re = 100: >= 8 samples per period are
@@ -167,6 +170,15 @@ def n_far_field_rings(cfg: Mapping) -> int:
     """Frozen rings beyond ``r_far`` of the polar layout: the fewest whose widths (the geometric
     sequence continued) cover the support radius of the outermost fluid ring's particles, plus one."""
     return far_rings(cfg["case"], lambda dx: _support_radius(cfg, dx), _NAMES)
+
+
+def particle_count(cfg: Mapping) -> tuple[int, tuple[str, ...]] | None:
+    """The layout's particle count (fluid and frozen far field) and the keys that set it, from the
+    config (:data:`~mlsph_jax.cases.body_layouts.BODY_LAYOUTS` ``count``; the ``run.max_particles``
+    guard); None for a user's layout without ``count``."""
+    c = cfg["case"]
+    count = getattr(BODY_LAYOUTS.get(c["layout"], "case.layout"), "count", None)
+    return None if count is None else count(c, lambda dx: _support_radius(cfg, dx))
 
 
 def check_cylinder(cfg: dict) -> None:
@@ -514,7 +526,7 @@ def _check_far_field_apart(walls, p: Particles) -> None:
 
 
 CYLINDER = register_case(
-    "cylinder", CYLINDER_KEYS, build, check=check_cylinder, dim=2,
+    "cylinder", CYLINDER_KEYS, build, check=check_cylinder, dim=2, particle_count=particle_count,
     defaults_override={"eos.kind": "ideal_gas", "eos.gamma": 1.4, "time.t_end": 30.0, "output.snapshots": 15},
     doc="Flow past a circular cylinder (thesis §4.5.2): a cylinder of radius `radius` in a free stream "
         "at Reynolds number `re` and Mach number `mach`, body-fitted polar layout (or a Cartesian lattice with the "

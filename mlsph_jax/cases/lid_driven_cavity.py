@@ -76,7 +76,15 @@ from ..simulation import Problem
 from ..state import Domain, Kind, Params, Particles, make_particles
 from .base import register_case
 from .channel_flows import lattice
-from .common import params_from_config, scheme_from_config, setup_walls, steady_tol_key, walls_key, walls_problems
+from .common import (
+    params_from_config,
+    scheme_from_config,
+    setup_walls,
+    steady_tol_key,
+    support_layers,
+    walls_key,
+    walls_problems,
+)
 
 # --- config schema: the [case] keys and cross-checks (mlsph_jax.config validates with them) ---------
 
@@ -188,8 +196,16 @@ def build(cfg: Mapping) -> Problem:
                    steady_tol=c["steady_tol"])
 
 
+def particle_count(cfg: Mapping) -> tuple[int, tuple[str, ...]]:
+    """n x n fluid particles, and with mirror ghosts the frame of ceil(kappa beta) layers around
+    them (an upper bound: the ghosts are the fluid particles within the support of a wall)."""
+    n, m = cfg["case"]["n"], support_layers(cfg)
+    return (n + 2 * m) ** 2 if cfg["case"]["walls"] == "mirror_ghosts" else n * n, ("case.n", "case.walls")
+
+
 LID_DRIVEN_CAVITY = register_case(
     "lid_driven_cavity", LID_DRIVEN_CAVITY_KEYS, build, check=check_lid_driven_cavity, dim=2,
+    particle_count=particle_count,
     defaults_override={"eos.kind": "tait", "eos.rho0": 1.0, "eos.c0": 10.0, "time.t_end": 15.0,
                        "output.snapshots": 15},
     doc="Two-dimensional lid-driven cavity (thesis §3.7.5): fluid at rest in the square [0, "

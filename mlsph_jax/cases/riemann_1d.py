@@ -32,7 +32,7 @@ from ..schema import Key, join_problems, show, suggest
 from ..simulation import Problem
 from ..state import Domain, Kind, Particles, make_particles
 from .base import register_case
-from .common import params_from_config, scheme_from_config
+from .common import params_from_config, scheme_from_config, support_layers
 
 # --- config schema: the [case] keys and cross-checks (mlsph_jax.config validates with them) ---------
 
@@ -162,8 +162,13 @@ def build(cfg: Mapping) -> Problem:
                    config=cfg, description=_title(cfg), differentiable_diagnostics=shock_position)
 
 
+def particle_count(cfg: Mapping) -> tuple[int, tuple[str, ...]]:
+    """n fluid particles and ceil(kappa beta) + 1 frozen ones at each end (as :func:`build`)."""
+    return cfg["case"]["n"] + 2 * (support_layers(cfg) + 1), ("case.n",)
+
+
 RIEMANN_1D = register_case(
-    "riemann_1d", RIEMANN_1D_KEYS, build, check=check_riemann_1d, dim=1,
+    "riemann_1d", RIEMANN_1D_KEYS, build, check=check_riemann_1d, dim=1, particle_count=particle_count,
     defaults_override={"scheme.frame": "lagrangian"},
     doc="One-dimensional Riemann problem (shock tube, thesis §3.7.1): two constant states separated by an "
         "interface at `x_interface`, compared with the exact solution.")

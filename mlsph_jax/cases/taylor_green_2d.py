@@ -256,8 +256,14 @@ def build(cfg: Mapping) -> Problem:
                    differentiable_metrics=differentiable_metrics)
 
 
+def particle_count(cfg: Mapping) -> tuple[int, tuple[str, ...]]:
+    """n x n particles (periodic: no walls)."""
+    return cfg["case"]["n"] ** 2, ("case.n",)
+
+
 TAYLOR_GREEN_2D = register_case(
     "taylor_green_2d", TAYLOR_GREEN_2D_KEYS, build, check=check_taylor_green_2d, dim=2,
+    particle_count=particle_count,
     defaults_override={"eos.kind": "tait", "eos.rho0": 1.0, "eos.c0": 10.0, "time.t_end": 1.0},
     doc="Two-dimensional viscous Taylor-Green vortex (weakly compressible, Tait EOS, periodic "
         "square [0, `length`]^2; thesis §3.7.3 and §4.5.1), compared with the exact incompressible "

@@ -29,8 +29,8 @@ from .tables import (
     series_per_output,
 )
 
-__all__ = ["case_table", "check_defaults_override", "get_case", "load", "loads", "parse_override",
-           "registered_cases", "validate"]
+__all__ = ["case_table", "check_defaults_override", "check_particle_limit", "get_case", "load", "loads",
+           "parse_override", "registered_cases", "validate"]
 
 
 # --------------------------------------------------------------------------------------------
@@ -212,6 +212,9 @@ def validate(cfg: Mapping) -> dict:
                           f"{series_allowed(t_end, snaps, interval)}")
     if case.check is not None:
         case.check(out)
+    estimate = None if case.particle_count is None else case.particle_count(out)
+    if estimate is not None:   # before anything is built
+        check_particle_limit(out, *estimate)
     return out
 
 
@@ -371,3 +374,29 @@ def load(path: str | Path | None, overrides: Sequence[str] = (), case: str | Non
     except (IsADirectoryError, UnicodeDecodeError) as e:
         raise ConfigError(f"config file {str(p)!r} unreadable: {e}") from None
     return loads(text, overrides, case, source=str(p))
+
+
+def check_particle_limit(cfg: Mapping, count: int, keys, estimated: bool = True) -> None:
+    """Refuse (:class:`~mlsph_jax.errors.ConfigError`) a run of more than ``run.max_particles``
+    particles, naming the config ``keys`` that set the count (with their values), the count
+    and the limit, and how to raise the limit."""
+    limit = cfg.get("run", {}).get("max_particles")
+    if limit is None or count <= limit:
+        return
+    vals = " / ".join(f"{k}={show(_lookup(cfg, k))}" for k in keys) or f"case.name={show(cfg['case']['name'])}"
+    how = "would build ~" if estimated else "built "
+    raise ConfigError(f"invalid {vals}: case {cfg['case']['name']!r} {how}{count:,} particles (fluid, walls and far "
+                      f"field{', estimated before building them' if estimated else ''}), above run.max_particles = "
+                      f"{limit:,}; allowed: a config with fewer particles (the keys above), or raise the limit "
+                      f"with --set run.max_particles={_round_up(count)} (or [run] max_particles in the config)")
+
+
+def _lookup(cfg: Mapping, dotted: str):
+    table, key = dotted.split(".", 1)
+    return cfg[table][key]
+
+
+def _round_up(n: int) -> int:
+    """n rounded up to two significant digits (a limit to suggest)."""
+    e = 10 ** max(len(str(int(n))) - 2, 0)
+    return -(-int(n) // e) * e

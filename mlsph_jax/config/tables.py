@@ -310,6 +310,14 @@ RUN_KEYS: dict[str, Key] = {
                      doc="floating-point precision of the particle state, the parameters and the geometry; "
                          "float32 keeps the MLS moment matrices and their solves and the Tait pressure in "
                          "float64 (docs/performance.md: its accuracy and speed)"),
+    "max_particles": Key(int, 200_000, minimum=1,
+                         doc="largest particle count (fluid, walls and far field) of a run: a config whose count, "
+                             "estimated from the config before any array is built (each case's particle_count), "
+                             "exceeds it is refused at load, naming the keys that set the count, the estimate and "
+                             "this limit; the built count is checked again after building. Raise it for a "
+                             "deliberately large run (built-in configs: at most ~10,000 particles, blast_2d; the "
+                             "thesis' cylinder 10,800; case.layout = \"cartesian\" on configs/cylinder.toml ~1.2 "
+                             "million)"),
 }
 
 
