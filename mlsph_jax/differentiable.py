@@ -44,13 +44,18 @@ Reverse-mode memory (``checkpoint``):
 ``policy`` is passed to ``jax.checkpoint`` (e.g. ``jax.checkpoint_policies.dots_saveable``).
 
 Time averages (``average``, ``window``): the run also accumulates, inside the scan, the time
-average over the window [t_start, t_end] of each scalar of ``average(particles, t, params)`` and
-of its square (``SimOutput.averages[name] = {"mean": ..., "mean_square": ...}``).  The rule is
+average over the window [t_start, t_end] of each scalar q of ``average(particles, t, params)`` and
+the mean square of its fluctuation about that mean (``SimOutput.averages[name] = {"mean": <q>,
+"variance": <(q - <q>)^2>}``).  The rule is
 the trapezoidal rule on the step grid: the integral over the window of the piecewise-linear
 interpolant of the values at every step time t_k = k dt, divided by the window's length
 (:func:`window_weights`; a window end between two steps cuts the linear piece there, so any
-window in [0, t_end] is exact for a quantity linear in t).  The weights are fixed on the host
-before tracing; a step outside the window skips the evaluation (``lax.cond``), so the cost is one
+window in [0, t_end] is exact for a quantity linear in t).  Both are accumulated by a weighted
+Welford update of (W, mean, M2): W += w_k; d = q_k - mean; mean += (w_k / W) d; M2 += w_k d
+(q_k - mean); variance = M2 / W.  The mean equals sum_k w_k q_k to round-off, and the variance has
+no cancellation (the one-pass <q^2> - <q>^2 loses all digits of a fluctuation below ~1e-8 of the
+mean).  The weights are fixed on the host before tracing; a step with w_k = 0 (outside the window,
+t = 0 included) skips the evaluation (``lax.cond``), so the cost is one
 evaluation of ``average`` per step inside the window and nothing else changes: no host
 synchronisation, one compilation, and without ``average`` the scan is the one above.
 """
@@ -93,7 +98,7 @@ class SimOutput:
     failed_step: jax.Array
     failed_time: jax.Array
     bad_particle: jax.Array
-    #: ``{name: {"mean": ..., "mean_square": ...}}``: the time averages over the window of the
+    #: ``{name: {"mean": ..., "variance": ...}}``: the time averages over the window of the
     #: quantities of ``make_simulate(..., average=...)`` (module docstring; empty without it).
     averages: dict = dataclasses.field(default_factory=dict)
 
@@ -153,7 +158,7 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
     intermediates as before.
 
     ``average(particles, t, params) -> dict`` of differentiable scalars: their time averages (and
-    those of their squares) over ``window`` = (t_start, t_end) (default: the whole run, (0,
+    the variances about them) over ``window`` = (t_start, t_end) (default: the whole run, (0,
     t_end)) are accumulated in the run and returned in ``SimOutput.averages`` (module docstring,
     "Time averages").  A window outside [0, t_end] or empty is an InputError naming it.
     """
@@ -204,20 +209,29 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
         st0 = st0 | setup.initial_status()
         failed0 = jnp.where(st0 != 0, 0, -1).astype(jnp.int32)
         # carry: (state, steps taken, status, first failing step, first offending particle)
-        acc0 = {}
-        if average is not None:   # the window's first point (t = 0 has weight 0 unless the window starts there)
-            acc0 = {n: (weights[0] * v, weights[0] * v * v) for n, v in average(particles, 0.0, params).items()}
-        carry0 = (particles, jnp.asarray(0, jnp.int32), st0, failed0, bad0, acc0)
-
         def accumulate(acc, p, k):
-            """Add step k's weighted value (module docstring, "Time averages"); skipped outside the window."""
+            """Add step k's weighted value to the running (weight W, mean, M2) of each quantity, a
+            weighted Welford update (module docstring, "Time averages"); skipped where w_k = 0."""
             w = weights[k]
 
             def add(acc):
                 vals = average(p, k * dt, params)
-                return {n: (a + w * vals[n], b + w * vals[n] * vals[n]) for n, (a, b) in acc.items()}
+                out = {}
+                for n, (W, mean, m2) in acc.items():
+                    W = W + w
+                    d = vals[n] - mean
+                    mean = mean + (w / jnp.where(W > 0, W, 1.0)) * d   # W >= w > 0 here; guarded for tracing
+                    out[n] = (W, mean, m2 + w * d * (vals[n] - mean))
+                return out
 
             return jax.lax.cond(w != 0, add, lambda a: a, acc)
+
+        acc0 = {}
+        if average is not None:   # the window's first point t = 0, under the same condition as every step
+            shapes = jax.eval_shape(lambda p: average(p, 0.0, params), particles)
+            acc0 = accumulate({n: (jnp.zeros(v.shape, v.dtype),) * 3 for n, v in shapes.items()}, particles,
+                              jnp.asarray(0, jnp.int32))
+        carry0 = (particles, jnp.asarray(0, jnp.int32), st0, failed0, bad0, acc0)
 
         def step(carry, _):
             p, k, st, failed, bad, acc = carry
@@ -255,7 +269,7 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
         series = {k: jnp.concatenate([jnp.asarray(first[k])[None], rec[k]]) for k in rec}
         times = jnp.arange(n_rec + 1) * (record_every * dt)
         failed_time = jnp.maximum(failed - 1, 0) * dt
-        averages = {n: {"mean": a, "mean_square": b} for n, (a, b) in acc.items()}
+        averages = {n: {"mean": mean, "variance": m2 / jnp.where(W > 0, W, 1.0)} for n, (W, mean, m2) in acc.items()}
         return SimOutput(pf, series, times, st, failed, failed_time, bad, averages)
 
     simulate.n_steps = n_steps

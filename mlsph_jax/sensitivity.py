@@ -11,11 +11,13 @@ Objectives (``--of``) are differentiable scalars of a run made by
   a window [t_start, t_end] of the run (``window``, ``mlsph sensitivity --window T_START T_END``;
   default the whole run [0, t_end]): ``<name>_mean`` = (1 / (t_end - t_start)) * integral of the
   quantity over the window, and ``<name>_rms`` = the root mean square of its fluctuation about
-  that mean, sqrt(mean(q^2) - mean(q)^2), e.g. ``cd_mean``, ``cl_mean``, ``cl_rms``, ``ke_mean``.
+  that mean, sqrt(mean((q - mean(q))^2)), e.g. ``cd_mean``, ``cl_mean``, ``cl_rms``, ``ke_mean``.
   They are accumulated inside the differentiated run at every step (the trapezoidal rule on the
   step grid, :func:`mlsph_jax.differentiable.window_weights`), not from the recorded series, so
-  they do not depend on ``record_every``.  The rms has no derivative where the fluctuation is
-  zero (a steady or mirror-symmetric flow: the square root at 0).
+  they do not depend on ``record_every``; the fluctuation is accumulated by a weighted Welford
+  update (no cancellation between <q^2> and <q>^2).  The rms has no derivative where the
+  fluctuation is zero (a steady or mirror-symmetric flow: the square root at 0): :func:`sensitivity`
+  refuses such an objective (InputError) rather than return NaN.
 
 :func:`sensitivity` returns d objective / d parameter for the requested parameters (dotted keys
 of the parameter pytree, e.g. ``physics.mu``, ``eos.c0``, ``boundary.wall_velocity``) and, with
@@ -74,11 +76,17 @@ TIME_AVERAGES = ("mean", "rms")
 
 def time_average(avg: Mapping, reduction: str) -> jax.Array:
     """The time average ``reduction`` (one of :data:`TIME_AVERAGES`) of a quantity from its
-    accumulated ``{"mean": <q>, "mean_square": <q^2>}`` (``SimOutput.averages[name]``): ``mean``
-    is <q>; ``rms`` is sqrt(<q^2> - <q>^2), the rms of the fluctuation about the window's mean
-    (clipped at 0 against round-off; no derivative where the fluctuation vanishes)."""
-    m, m2 = avg["mean"], avg["mean_square"]
-    return m if reduction == "mean" else jnp.sqrt(jnp.maximum(m2 - m * m, 0.0))
+    accumulated ``{"mean": <q>, "variance": <(q - <q>)^2>}`` (``SimOutput.averages[name]``, a
+    weighted Welford accumulation in the run): ``mean`` is <q>; ``rms`` is sqrt(variance), the
+    rms of the fluctuation about the window's mean.  The square root is taken only where the
+    variance is positive, so a vanishing fluctuation gives 0 with a zero (not NaN) derivative;
+    :func:`sensitivity` refuses an rms objective whose value is 0, whose derivative is undefined."""
+    if reduction not in TIME_AVERAGES:
+        raise InputError(f"invalid time-average reduction {reduction!r}; allowed: {', '.join(TIME_AVERAGES)}")
+    if reduction == "mean":
+        return avg["mean"]
+    v = avg["variance"]
+    return jnp.where(v > 0, jnp.sqrt(jnp.where(v > 0, v, 1.0)), 0.0)
 
 
 def _objectives(problem, simulate) -> dict[str, tuple[str, str, str]]:
@@ -157,6 +165,7 @@ def sensitivity(problem, wrt: Sequence[str], of: str, check_fd: bool = False, fd
 
     (value, out), grads = jax.jit(jax.value_and_grad(g, has_aux=True))(theta)
     check(out, simulate, problem.params)
+    _check_gradient(of, float(value), grads, f.window)
     result = {"objective": of, "value": float(value), "n_steps": simulate.n_steps, "dt": simulate.dt,
               "gradients": {}}
     if f.window is not None:
@@ -204,6 +213,22 @@ def sensitivity(problem, wrt: Sequence[str], of: str, check_fd: bool = False, fd
             entry.update(fd_verdict(gk, fd, fd10, mood=problem.scheme.limiter == "mood"))
         result["gradients"][k] = entry
     return result
+
+
+def _check_gradient(of: str, value: float, grads: Mapping, window) -> None:
+    """Refuse (InputError) an objective whose derivative is undefined or not finite instead of
+    reporting NaN: an rms of a fluctuation that is exactly 0 over the window (the square root at
+    0), or any non-finite gradient."""
+    over = "" if window is None else f" over the window [{window[0]:.6g}, {window[1]:.6g}]"
+    if of.endswith("_rms") and value == 0.0:
+        raise InputError(f"invalid --of {of!r}: {of} is 0{over} (the quantity does not fluctuate): its gradient is "
+                         "undefined (the square root at 0); allowed: a quantity that fluctuates over the window, "
+                         f"or --of {of[:-4]}_mean")
+    bad = [k for k, g in grads.items() if not np.all(np.isfinite(np.asarray(g)))]
+    if bad:
+        raise InputError(f"invalid --of {of!r}: its value is {value:.6g}{over} but its gradient with respect to "
+                         f"{', '.join(bad)} is not finite (the objective is not differentiable there); allowed: "
+                         "another objective or window")
 
 
 #: Largest relative AD/FD difference called agreement (central differences at the default

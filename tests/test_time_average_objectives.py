@@ -112,6 +112,62 @@ def test_cylinder_cd_mean_and_cl_rms_match_host_and_finite_differences():
     np.testing.assert_allclose(np.asarray(dobj), fd, rtol=1e-6)
 
 
+def _fluctuating(eps):
+    """q(t) = 1.6 + eps sin(2 pi t / T) on the Couette run's steps (T = the run's end time)."""
+    def average(p, t, P):
+        return {"q": 1.6 + eps * jnp.sin(2 * jnp.pi * t / T) + 0.0 * P["physics.mu"]}
+    T = 30 * make_simulate(couette_problem(), n_steps=30).dt
+    return average, T
+
+
+@pytest.mark.parametrize("eps", [1e-7, 1e-8])
+def test_rms_of_a_tiny_fluctuation_has_no_cancellation(eps):
+    """q = 1.6 + eps sin(2 pi t / T): the in-run rms over the window equals the weighted rms of the
+    fluctuation computed on the host from eps sin(...) alone (no 1.6 to cancel), to 1e-6 relative
+    (the one-pass sqrt(<q^2> - <q>^2) was 7.5 % wrong at eps = 1e-7 and 0 at 1e-8)."""
+    pb = couette_problem()
+    average, T = _fluctuating(eps)
+    win = (0.1 * T, 0.83 * T)
+    sim = make_simulate(pb, n_steps=30, average=average, window=win)
+    out = sim(pb.params, pb.particles)
+    rms = float(time_average(out.averages["q"], "rms"))
+    w = window_weights(30, sim.dt, win)
+    s = eps * np.sin(2 * np.pi * np.arange(31) * sim.dt / T)
+    exact = math.sqrt(w @ (s - w @ s) ** 2)
+    assert exact > 0.1 * eps
+    assert abs(rms - exact) <= 1e-6 * exact, (rms, exact)
+    assert abs(float(time_average(out.averages["q"], "mean")) - (1.6 + w @ s)) <= 1e-15 * 1.6
+
+
+def test_rms_of_a_constant_is_zero_with_a_zero_gradient():
+    """A quantity that does not fluctuate: rms exactly 0 and its derivative 0, not NaN (the square
+    root is taken only where the variance is positive)."""
+    pb = couette_problem()
+    sim = make_simulate(pb, n_steps=30, average=lambda p, t, P: {"c": 2.0 * P["physics.mu"]})
+
+    def f(mu):
+        return time_average(sim(with_param(pb.params, "physics.mu", mu), pb.particles).averages["c"], "rms")
+
+    val, g = jax.value_and_grad(f)(jnp.asarray(pb.params["physics.mu"]))
+    assert float(val) == 0.0 and float(g) == 0.0
+
+
+def test_sensitivity_refuses_an_rms_that_is_zero(monkeypatch):
+    """``sensitivity`` of an rms objective whose value is exactly 0 raises an InputError naming --of,
+    the value and why (its gradient is undefined), instead of printing NaN."""
+    pb = couette_problem()
+    dm = lambda p, t, P: {"const": 2.0 * P["physics.mu"]}  # noqa: E731  (a metric that never changes)
+    monkeypatch.setattr(pb, "differentiable_metrics", dm, raising=False)
+    with pytest.raises(InputError, match=r"--of 'const_rms'.*const_rms is 0.*gradient is undefined"):
+        sensitivity(pb, ["physics.mu"], "const_rms", n_steps=30)
+
+
+def test_unknown_time_average_reduction_is_refused():
+    avg = {"mean": jnp.asarray(1.0), "variance": jnp.asarray(0.5)}
+    with pytest.raises(InputError, match=r"invalid time-average reduction 'std'; allowed: mean, rms"):
+        time_average(avg, "std")
+
+
 # --- bad input ------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("window, words", [
