@@ -296,8 +296,8 @@ def _window(window, t_end: float) -> tuple[float, float]:
                          f"0 <= T_START < T_END <= {t_end:.10g} (the run's end)") from None
     tol = 1e-12 * max(abs(t_end), 1.0)
     if not (math.isfinite(a) and math.isfinite(b)) or a < -tol or b > t_end + tol or not b > a:
-        why = ("empty (T_END <= T_START)" if math.isfinite(a) and math.isfinite(b) and b <= a
-               else "outside the run [0, t_end]")
+        why = ("not a finite number" if not (math.isfinite(a) and math.isfinite(b))
+               else "empty (T_END <= T_START)" if b <= a else "outside the run [0, t_end]")
         raise InputError(f"invalid window (--window) = ({a:.10g}, {b:.10g}): {why}; allowed: "
                          f"0 <= T_START < T_END <= {t_end:.10g} (the run's end time, n_steps x dt)")
     return max(a, 0.0), min(b, float(t_end))
@@ -307,8 +307,8 @@ def window_weights(n_steps: int, dt: float, window=None) -> np.ndarray:
     """Weights w_k (k = 0..n_steps) with sum_k w_k f(t_k) = (1 / (b - a)) * integral over [a, b]
     of the piecewise-linear interpolant of f at t_k = k dt (the trapezoidal rule on the step
     grid, a window end inside a step cutting its linear piece); ``window`` = (a, b), default the
-    whole run.  They sum to 1."""
-    a, b = _window(window, n_steps * dt)
+    whole run, an end within :data:`SNAP` dt of a step time taken at that step time.  They sum to 1."""
+    a, b = (_snap(v, dt) for v in _window(window, n_steps * dt))
     w = np.zeros(n_steps + 1)
     k0 = min(int(math.floor(a / dt)), n_steps - 1)
     k1 = min(int(math.ceil(b / dt)), n_steps)
@@ -317,9 +317,21 @@ def window_weights(n_steps: int, dt: float, window=None) -> np.ndarray:
         lo, hi = max(a, tk), min(b, tk1)
         if hi <= lo:
             continue
-        w[k] += ((tk1 - lo) ** 2 - (tk1 - hi) ** 2) / (2 * dt)
-        w[k + 1] += ((hi - tk) ** 2 - (lo - tk) ** 2) / (2 * dt)
+        # (tk1-lo)^2 - (tk1-hi)^2 and (hi-tk)^2 - (lo-tk)^2, factored: no cancellation for hi - lo << dt
+        w[k] += (hi - lo) * (2 * tk1 - lo - hi) / (2 * dt)
+        w[k + 1] += (hi - lo) * (lo + hi - 2 * tk) / (2 * dt)
     return w / (b - a)
+
+
+#: A window end closer than this many steps to a step time is moved onto it (no weights of
+#: round-off size, ~1e-32, from a piece of length 1e-17 next to the grid point).
+SNAP = 1e-9
+
+
+def _snap(t: float, dt: float) -> float:
+    """``t`` moved onto the nearest step time k dt when within :data:`SNAP` dt of it."""
+    k = round(t / dt)
+    return k * dt if abs(t / dt - k) <= SNAP else t
 
 
 def _segment(n_steps: int, record_every: int) -> int:

@@ -36,7 +36,8 @@ def host_average(t, f, a, b):
     return float(np.sum(0.5 * (ff[1:] + ff[:-1]) * np.diff(tt)) / (b - a))
 
 
-@pytest.mark.parametrize("window", [None, (0.0, 1.0), (0.13, 0.71), (0.3, 0.3 + 1e-3), (0.95, 1.0)])
+@pytest.mark.parametrize("window", [None, (0.0, 1.0), (0.13, 0.71), (0.3, 0.3 + 1e-3), (0.95, 1.0),
+                                    (0.35, 0.35 + 1e-12)])
 def test_window_weights_are_the_trapezoidal_rule_and_exact_for_linear_data(window):
     """sum w_k = 1; for f(t) = 3 - 2t (linear) the weighted sum is its exact mean over the window,
     3 - (a + b); for random samples it is the host trapezoid with interpolated ends."""
@@ -51,6 +52,35 @@ def test_window_weights_are_the_trapezoidal_rule_and_exact_for_linear_data(windo
     assert abs(w @ f - host_average(t, f, a, b)) < 1e-12
     if window is not None and window[0] > 0:
         assert w[0] == 0.0    # outside the window: no weight (the run skips the evaluation)
+
+
+@pytest.mark.parametrize("a, b", [(0.3, 0.7), (0.3 + 1e-12, 0.7 - 1e-12), (0.7, 0.9)])
+def test_window_ends_on_step_times_give_no_round_off_weights(a, b):
+    """Window ends on (or within 1e-9 dt of) a step time: the steps outside get weight exactly 0
+    (0.3 / 0.1 = 2.9999999999999996 made a 1e-32 weight for step 2) and the rest is the plain
+    trapezoid, w = dt / (b - a) x (1/2, 1, ..., 1, 1/2)."""
+    n, dt = 10, 0.1
+    w = window_weights(n, dt, (a, b))
+    k0, k1 = round(a / dt), round(b / dt)
+    assert np.all(w[:k0] == 0.0) and np.all(w[k1 + 1:] == 0.0), w
+    ref = np.full(k1 - k0 + 1, 1.0)
+    ref[[0, -1]] = 0.5
+    np.testing.assert_allclose(w[k0:k1 + 1], ref / (k1 - k0), rtol=1e-12)
+
+
+def test_steps_outside_the_window_are_not_evaluated_t0_included():
+    """A quantity that is infinite at t = 0 (1 / t) averaged over a window that starts later:
+    the t = 0 term is skipped like every step outside the window (it was 0 x inf = NaN), and the
+    mean is the trapezoid of 1 / t_k over the window's steps."""
+    pb = couette_problem()
+    sim0 = make_simulate(pb, n_steps=30)
+    win = (5 * sim0.dt, 20 * sim0.dt)
+    sim = make_simulate(pb, n_steps=30, average=lambda p, t, P: {"inv": 1.0 / jnp.asarray(t)}, window=win)
+    out = sim(pb.params, pb.particles)
+    w = window_weights(30, sim.dt, win)
+    k = np.arange(1, 31)
+    expected = w[1:] @ (1.0 / (k * sim.dt))
+    assert abs(float(time_average(out.averages["inv"], "mean")) - expected) <= 1e-13 * expected
 
 
 def test_couette_windowed_ke_mean_matches_host_and_finite_differences():
@@ -175,7 +205,8 @@ def test_unknown_time_average_reduction_is_refused():
     ((-0.01, 0.02), ["--window", "-0.01", "outside the run"]),
     ((0.02, 0.02), ["--window", "0.02", "empty"]),
     ((0.03, 0.01), ["--window", "empty"]),
-    ((0.0, float("nan")), ["--window", "nan"]),
+    ((0.0, float("nan")), ["--window", "nan", "not a finite number"]),
+    ((float("-inf"), 0.02), ["--window", "-inf", "not a finite number"]),
     ((0.01,), ["--window", "two numbers"]),
 ])
 def test_bad_window_names_the_option_value_and_range(window, words):
