@@ -180,14 +180,36 @@ def build(cfg: Mapping) -> Problem:
                    config=cfg, description=_title(cfg, len(xf)))
 
 
+#: Upper bound of sqrt(max_i V_i) / dr on the ``rings`` layout: annulus k holds
+#: rint(pi (2k + 1)) particles of area pi (2k + 1) dr^2 / rint(pi (2k + 1)), largest at k = 0, 1
+#: (pi / 3 dr^2).  On the Delaunay layouts (``delaunay``, ``perturbed``, same volumes) the bound
+#: used is 2 dx: the largest triangle sits in the boundary band; measured at most 1.63 dx
+#: (dx = 4e-4 .. 8e-3, seeds 0-2; 1.63 at dx = 6.5e-4, 1.41-1.49 at dx >= 1e-3).
+RINGS_SQRT_VMAX = math.sqrt(math.pi / 3.0)
+DELAUNAY_SQRT_VMAX = 2.0
+
+
 def particle_count(cfg: Mapping) -> tuple[int, tuple[str, ...]]:
-    """pi R^2 / dx^2 fluid particles and the frozen rings (as :func:`build`: ceil(kappa beta
-    sqrt(V_max) / dr) + 1 rings of width dr ~ dx), all by area / dx^2; sqrt(V_max) taken as 1.5 dx,
-    an upper bound (measured 1.07 dx on the rings, 1.42 dx on the Delaunay layouts), so the
-    estimate is an upper bound within ~20 % (tests/test_particle_limit.py)."""
+    """An upper bound of :func:`build`'s particle count without building a layout: the fluid
+    disc (``rings``: sum_k rint(2 pi (k + 1/2)) over its n_r = round(R / dx) annuli, exact; the
+    Delaunay layouts: pi R^2 / dx^2, measured 0.2-5.5 % above the triangle count) plus the frozen
+    rings counted exactly as :func:`far_field_rings` lays them, ceil(kappa beta sqrt(V_max) / dr) + 1
+    of them with sqrt(V_max) bounded by :data:`RINGS_SQRT_VMAX` dr or :data:`DELAUNAY_SQRT_VMAX`
+    dx (tests/test_particle_limit.py)."""
     c, s = cfg["case"], scheme_from_config(cfg)
-    r_out = c["radius"] + (math.ceil(1.5 * s.support * s.beta) + 1) * c["dx"]
-    return round(math.pi * r_out ** 2 / c["dx"] ** 2), ("case.radius", "case.dx")
+    radius, dx = c["radius"], c["dx"]
+    n_r = max(1, round(radius / dx))
+    dr = radius / n_r
+
+    def ring_sizes(k0, k1):   # particles of the rings layout's annuli k0 .. k1 - 1
+        return int(np.maximum(1, np.rint(2.0 * np.pi * (np.arange(k0, k1) + 0.5))).sum())
+
+    if c["layout"] == "rings":
+        fluid, sqrt_vmax = ring_sizes(0, n_r), RINGS_SQRT_VMAX * dr
+    else:
+        fluid, sqrt_vmax = math.ceil(math.pi * radius ** 2 / dx ** 2), DELAUNAY_SQRT_VMAX * dx
+    n_frozen = math.ceil(s.support * s.beta * sqrt_vmax * (1 + 1e-12) / dr) + 1
+    return fluid + ring_sizes(n_r, n_r + n_frozen), ("case.radius", "case.dx", "case.layout")
 
 
 BLAST_2D = register_case(
