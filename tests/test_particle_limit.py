@@ -119,6 +119,20 @@ def test_a_built_count_above_the_limit_is_refused_with_the_keys():
     check_particle_limit({**cfg, "run": {**cfg["run"], "max_particles": 1000}}, 1000, ("case.nx",))   # at: ok
 
 
+def test_a_built_count_above_the_limit_without_an_estimate_names_the_case():
+    """A case without ``particle_count`` (a plugin) is checked only after building: the refusal
+    names the case, the count and the limit, and says to reduce its resolution keys or raise the
+    limit (not "invalid case.name=..." and "the keys above", which named nothing useful)."""
+    cfg = config_mod.load(CONFIG_DIR / "couette.toml", [])
+    with pytest.raises(ConfigError) as e:
+        check_particle_limit({**cfg, "run": {**cfg["run"], "max_particles": 1000}}, 1001, (), estimated=False)
+    msg = str(e.value)
+    assert msg.startswith("case 'couette' built 1,001 particles"), msg
+    for w in ("run.max_particles = 1,000", "reduce the case's resolution keys", "--set run.max_particles=1100"):
+        assert w in msg, (w, msg)
+    assert "case.name=" not in msg and "keys above" not in msg, msg
+
+
 @pytest.mark.parametrize("value", ["0", "-5", "1.5"])
 def test_bad_limit_names_the_key(value):
     with pytest.raises(ConfigError, match=r"run\.max_particles"):

@@ -383,12 +383,18 @@ def check_particle_limit(cfg: Mapping, count: int, keys, estimated: bool = True)
     limit = cfg.get("run", {}).get("max_particles")
     if limit is None or count <= limit:
         return
-    vals = " / ".join(f"{k}={show(_lookup(cfg, k))}" for k in keys) or f"case.name={show(cfg['case']['name'])}"
+    name = cfg["case"]["name"]
     how = "would build ~" if estimated else "built "
-    raise ConfigError(f"invalid {vals}: case {cfg['case']['name']!r} {how}{count:,} particles (fluid, walls and far "
-                      f"field{', estimated before building them' if estimated else ''}), above run.max_particles = "
-                      f"{limit:,}; allowed: a config with fewer particles (the keys above), or raise the limit "
-                      f"with --set run.max_particles={_round_up(count)} (or [run] max_particles in the config)")
+    what = (f"{how}{count:,} particles (fluid, walls and far field"
+            f"{', estimated before building them' if estimated else ''}), above run.max_particles = {limit:,}")
+    raise_limit = (f"raise the limit with --set run.max_particles={_round_up(count)} (or [run] max_particles in "
+                   "the config)")
+    if not keys:   # a case without an estimate: only its built count is known, not the keys that set it
+        raise ConfigError(f"case {name!r} {what}; allowed: reduce the case's resolution keys (case.*), or "
+                          f"{raise_limit}")
+    vals = " / ".join(f"{k}={show(_lookup(cfg, k))}" for k in keys)
+    raise ConfigError(f"invalid {vals}: case {name!r} {what}; allowed: a config with fewer particles (the keys "
+                      f"above), or {raise_limit}")
 
 
 def _lookup(cfg: Mapping, dotted: str):
