@@ -100,7 +100,8 @@ def _parser() -> argparse.ArgumentParser:
     s_.add_argument("--window", nargs=2, type=float, default=None, metavar=("T_START", "T_END"),
                     help="time window of a time-averaged objective (<name>_mean, <name>_rms): the trapezoidal "
                          "average over the run's steps in [T_START, T_END], 0 <= T_START < T_END <= t_end "
-                         "(default: the whole run, 0 to t_end)")
+                         "(default: the whole run, 0 to t_end, start-up included, unlike the cylinder's "
+                         "summary.json statistics that start after case.transient; a line says so)")
     s_.add_argument("--check-fd", action="store_true", help="compare with central finite differences")
     s_.add_argument("--fd-rel", type=float, default=1e-5, help="relative finite-difference step")
     c_ = sub.add_parser("calibrate", parents=[diff_opts], help="fit parameters to observed time series (optax)")
@@ -306,6 +307,8 @@ def cmd_sensitivity(args) -> int:
                       **_cfl_kw(cfg), **_diff_kw(args))
     res["wall_time_s"] = time.perf_counter() - t0
     over = f" over t in [{res['window'][0]:.6g}, {res['window'][1]:.6g}]" if "window" in res else ""
+    if "window" in res and args.window is None:
+        print(_default_window_note(args.of, res["window"], cfg))
     print(f"{args.of} = {res['value']:.10g}{over} after {res['n_steps']} steps of dt = {res['dt']:.4g}")
     for k, e in res["gradients"].items():
         line = f"  d {args.of} / d {k} = {e['gradient']}"
@@ -320,6 +323,16 @@ def cmd_sensitivity(args) -> int:
     (out / "sensitivity.json").write_text(json.dumps(res, indent=2))
     print(f"wrote {out / 'sensitivity.json'} ({res['wall_time_s']:.1f} s)")
     return 0
+
+
+def _default_window_note(of: str, window, cfg) -> str:
+    """The one line that says which window a time-averaged objective used when ``--window`` was
+    not given: the whole run, start-up included (unlike statistics taken after a transient)."""
+    transient = cfg["case"].get("transient")
+    after = ("" if transient is None else
+             f"; the case's summary.json statistics start after case.transient = {transient:g}")
+    return (f"note: no --window given: {of} averages over the whole run, t in [{window[0]:.6g}, {window[1]:.6g}], "
+            f"the start-up included{after}; --window T_START T_END excludes it")
 
 
 def cmd_calibrate(args) -> int:

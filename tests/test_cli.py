@@ -108,3 +108,18 @@ def test_run_writes_the_output_contract(tmp_path):
 def test_config_reference_is_current():
     """docs/config.md is generated from the schema; regenerate it when keys change."""
     assert (ROOT / "docs/config.md").read_text() == config.config_reference_markdown()
+
+
+def test_sensitivity_says_which_window_a_time_average_uses(capsys, tmp_path):
+    """``--of ke_mean`` without ``--window`` prints one line saying the average is over the whole
+    run (start-up included) and how to exclude it; with ``--window`` or an instantaneous
+    objective there is no such line."""
+    base = ["sensitivity", "couette", "--set", "case.ny=8", "case.nx=8", "time.t_end=0.05", "--wrt", "physics.mu",
+            "--n-steps", "30", "--out"]
+    assert main([*base, str(tmp_path / "a"), "--of", "ke_mean"]) == 0
+    out = capsys.readouterr().out
+    notes = [ln for ln in out.splitlines() if "no --window given" in ln]
+    assert len(notes) == 1 and "ke_mean averages over the whole run, t in [0, 0.05]" in notes[0], out
+    assert "start-up included" in notes[0] and "--window T_START T_END" in notes[0]
+    assert main([*base, str(tmp_path / "b"), "--of", "ke_mean", "--window", "0.01", "0.05"]) == 0
+    assert "no --window given" not in capsys.readouterr().out
