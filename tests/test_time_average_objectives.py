@@ -192,6 +192,17 @@ def test_sensitivity_refuses_an_rms_that_is_zero(monkeypatch):
         sensitivity(pb, ["physics.mu"], "const_rms", n_steps=30)
 
 
+def test_sensitivity_refuses_a_non_finite_gradient(monkeypatch):
+    """An objective whose gradient is not finite (here sqrt at 0 of a metric: value 0, derivative
+    NaN) is refused with an InputError naming --of, the value and the parameter, not printed."""
+    pb = couette_problem()
+    dm = lambda p, t, P: {"kink": jnp.sqrt(P["physics.mu"] - pb.params["physics.mu"])}  # noqa: E731
+    monkeypatch.setattr(pb, "differentiable_metrics", dm, raising=False)
+    with pytest.raises(InputError, match=r"--of 'kink': its value is 0 but its gradient with respect to "
+                                         r"physics.mu is not finite"):
+        sensitivity(pb, ["physics.mu"], "kink", n_steps=30)
+
+
 def test_unknown_time_average_reduction_is_refused():
     avg = {"mean": jnp.asarray(1.0), "variance": jnp.asarray(0.5)}
     with pytest.raises(InputError, match=r"invalid time-average reduction 'std'; allowed: mean, rms"):
