@@ -147,7 +147,7 @@ from mlsph_jax.simulation import run_problem  # noqa: E402
 CD_RE20 = 2.0
 COARSE = ("case.n_theta=32", "case.r_far=4.0", "case.mach=0.2", "time.t_end=4.0", "output.snapshots=2",
           "case.steady_tol=0", "time.local_time_stepping=false",   # (t = 4 of the physical start-up)
-          "output.degree_fallback_warn=0.05")   # 3.1 % on a quadratic fit at 32 on the body (the config's 1.6 %)
+          "output.degree_fallback_warn=0.1")    # 8.3 % (the first ring) on a quadratic fit (the config: 2.8 %)
 
 
 def test_coarse_re40_drag_in_band():
@@ -164,15 +164,31 @@ def test_coarse_re40_drag_in_band():
     assert 0.6 < m["cd_pressure"] / cd < 0.75, m
 
 
+def test_builtin_scheme_survives_the_impulsive_start_on_a_coarse_ellipse():
+    """The config's cubic reconstruction on the strongly curved, coarse body of the shape studies
+    (ellipse A = 2 at 5 deg, 32 points, far field at 3 D, Mach 0.2, global steps): the fits of the
+    first rings are one-sided, and with the scheme default rcond = 1e-2 some keep a barely
+    conditioned cubic (pivot ratio between 0.01 and 0.1) that blew up in step 1 (and at step 7 at
+    the thesis' n_theta = 120 around the circle).  The config's rcond = 0.1 drops those fits to
+    quadratic (docs/architecture.md decision 75): the start-up must stay finite (0.3 time units,
+    ~34 steps; with rcond = 0.01 the run stops with a non-finite state in step 1)."""
+    cfg, pb = _problem('case.body="ellipse"', "case.aspect=2.0", "case.alpha=5.0", "case.mach=0.2",
+                       "time.local_time_stepping=false", "time.t_end=0.3", "output.snapshots=1",
+                       "output.degree_fallback_warn=0.15")    # 10 %: the first ring of this small layout
+    s = run_problem(pb, cfg, out_dir=None, quiet=True).summary
+    assert s["status"] == "ok", s["status"]
+    assert s["n_steps"] > 20 and np.isfinite(s["metrics"]["cd"]), s["metrics"]
+
+
 @pytest.mark.slow
 def test_builtin_config_meets_the_re40_targets():
     """configs/cylinder.toml as shipped (n_theta = 48, far field at 40 D, local time steps to the
     steady state) against issue 17's Re = 40 targets: C_D within 3 % of 1.56, C_p front within 4 %
     of 1.18, base within 8 % of -0.51, L_w / D within 10 % of 2.3 (about 14 min on 2 shared
     cores at load 7).  Measured (docs/validation.md "The front stagnation pressure", cubic
-    reconstruction): steady at t = 20, C_D 1.515 and C_p base -0.521 meet their targets; C_p front
-    1.087 and L_w / D 1.75 do not (the wake and the stagnation peak are under-resolved at n_theta
-    = 48): C_D must meet its target; the others are reported as an expected failure
+    reconstruction, rcond 0.1 since decision 75): steady at t = 20, C_D 1.522 and C_p base -0.521
+    meet their targets; C_p front 1.066 and L_w / D 1.74 do not (the wake and the stagnation peak
+    are under-resolved at n_theta = 48): C_D must meet its target; the others are reported as an expected failure
     with the measured values (and the test passes once they are met)."""
     cfg = config_mod.load(CONFIG_DIR / "cylinder.toml", ["output.plots=false", "output.progress=false"])
     s = run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True).summary
