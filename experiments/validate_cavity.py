@@ -8,9 +8,12 @@ test compares consecutive outputs).  For every run: centre-line profiles u(x = L
 v(x, y = L/2) against Ghia (cf. Fig. 3.22) and speed contours with streamlines (cf. Fig. 3.23)
 -> docs/figures/cavity_re{Re}_n{n}_centerlines.png / _field.png, plus one figure with every
 run's centre lines (cavity_centerlines_all.png); metrics, steady-state stop, time series and
-wall times -> experiments/output/cavity_validation.json.
+wall times -> experiments/output/cavity_validation.json.  Printed per run: where along the centre
+lines the largest u and v deviations sit (signed, > 0 = above Ghia) and the time series of both
+deviations, u_min and the steady-state residual at every output (is the steady stop early?);
+``--keep DIR`` keeps each run's output folder (a snapshot per second in fields.h5).
 
-    python experiments/validate_cavity.py [--runs 100:40 ...] [--set KEY=VALUE ...]
+    python experiments/validate_cavity.py [--runs 100:40 ...] [--set KEY=VALUE ...] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -26,7 +29,12 @@ import numpy as np
 
 from mlsph_jax import config
 from mlsph_jax.cases import build_problem
-from mlsph_jax.cases.lid_driven_cavity import centerlines, finish_centerline_figure
+from mlsph_jax.cases.lid_driven_cavity import (
+    centerlines,
+    finish_centerline_figure,
+    ghia_deviations,
+    worst_points,
+)
 from mlsph_jax.reference import ghia
 from mlsph_jax.simulation import run_problem
 
@@ -39,6 +47,9 @@ def main():
     ap.add_argument("--runs", nargs="+", default=["100:40"], help="RE:N[:T_END] per run")
     ap.add_argument("--set", nargs="*", default=[], help="further config overrides")
     ap.add_argument("--figures", default=str(ROOT / "docs" / "figures"))
+    ap.add_argument("--keep", default=None, metavar="DIR",
+                    help="keep every run's output folder (fields.h5 with a snapshot per second, summary.json, "
+                         "timeseries.csv) as DIR/cavity_re{Re}_n{n} instead of deleting it")
     args = ap.parse_args()
     figs = Path(args.figures)
     figs.mkdir(parents=True, exist_ok=True)
@@ -63,20 +74,26 @@ def main():
             ov += [f"time.t_end={t_end:g}", f"output.snapshots={max(1, round(t_end))}"]
         cfg = config.load(ROOT / CFG, ov)
         pb = build_problem(cfg)
-        tmp = Path(tempfile.mkdtemp(prefix="cavity_"))
+        stem = f"cavity_re{re:g}_n{n}"
+        tmp = Path(args.keep) / stem if args.keep else Path(tempfile.mkdtemp(prefix="cavity_"))
         t0 = time.perf_counter()
         r = run_problem(pb, cfg, out_dir=tmp, quiet=True)
         total = time.perf_counter() - t0
         s = r.summary
-        stem = f"cavity_re{re:g}_n{n}"
         shutil.copy(tmp / "centerlines.png", figs / f"{stem}_centerlines.png")
         shutil.copy(tmp / "velocity_field.png", figs / f"{stem}_field.png")
-        shutil.rmtree(tmp)
+        if not args.keep:
+            shutil.rmtree(tmp)
         m = s["metrics"]
         row = {"re": re, "n": n, "overrides": ov, "metrics": m, "steady_state": s.get("steady_state"),
                "t_final": s["t_final"], "n_steps": s["n_steps"], "n_particles": s["n_particles"],
                "wall_time_s": s["wall_time_s"], "compile_time_s": s["compile_time_s"], "total_time_s": total,
                "conservation": s["conservation"], "timeseries": s.get("timeseries")}
+        re_table = ghia.table_reynolds(re)
+        if re_table is not None:
+            dev = ghia_deviations(r.particles, pb.params, pb.config, pb.scheme, re_table)
+            row["deviations"] = {k: [list(map(float, a)) for a in ab] for k, ab in zip("uv", dev, strict=True)}
+            row["worst"] = worst_points(dev)
         runs.append(row)
         st = s.get("steady_state") or {}
         g = {k: m.get(k, float("nan")) for k in ("ghia_u_max_abs_dev", "ghia_v_max_abs_dev", "ghia_u_rms_dev",
@@ -85,6 +102,15 @@ def main():
               f"{g['ghia_u_max_abs_dev']:>8.4f} {g['ghia_v_max_abs_dev']:>8.4f} "
               f"{g['ghia_u_rms_dev']:>8.4f} {g['ghia_v_rms_dev']:>8.4f} "
               f"{m['u_min_centerline']:>8.4f} {s['n_steps']:>6} {s['wall_time_s']:>7.0f}", flush=True)
+        if "worst" in row:
+            (yu, du), (xv, dv) = row["worst"]["u"], row["worst"]["v"]
+            print(f"       largest deviations: u {du:+.4f} at y = {yu:.4f} L, v {dv:+.4f} at x = {xv:.4f} L")
+        ts = s.get("timeseries") or {}
+        if "ghia_u_max_abs_dev" in ts:
+            print("       t: u_dev v_dev u_min residual | " + "; ".join(
+                f"{t:g}: {a:.4f} {b:.4f} {c:.4f} {d:.2g}" for t, a, b, c, d in zip(
+                    ts["t"], ts["ghia_u_max_abs_dev"], ts["ghia_v_max_abs_dev"], ts["u_min_centerline"],
+                    ts["velocity_change_rate"], strict=True)), flush=True)
         col = next(colors)
         u_line, v_line = centerlines(r.particles, pb.params, pb.config, pb.scheme, line, line)
         a1.plot(u_line, line, "-", color=col, lw=1.1, label=f"Re={re:g}, {n}x{n}")

@@ -28,7 +28,7 @@ import pytest
 
 from mlsph_jax import config
 from mlsph_jax.cases import build_problem
-from mlsph_jax.cases.lid_driven_cavity import cavity_metrics, mls_interpolate
+from mlsph_jax.cases.lid_driven_cavity import cavity_metrics, ghia_deviations, mls_interpolate, worst_points
 from mlsph_jax.errors import ConfigError, InputError
 from mlsph_jax.reference import ghia
 from mlsph_jax.simulation import run_problem
@@ -171,6 +171,30 @@ def test_initial_state_metrics():
     assert m["kinetic_energy"] == 0.0
     assert m["ghia_v_max_abs_dev"] == pytest.approx(0.24533, abs=1e-12)     # |v_Ghia(0.8047)|
     assert m["ghia_u_max_abs_dev"] > 0.5
+
+
+def test_ghia_deviations_are_signed_and_located():
+    """A quadratic velocity field (u = 0.3 - 0.8 y + 1.1 y^2, v = 0.2 x - 0.5 x^2 on every particle,
+    ghosts included) is reproduced by the MLS fit, so the signed deviations at Ghia's interior
+    points are the field minus Ghia's values, and the worst points are where |field - Ghia| is
+    largest; the metrics are their max and rms."""
+    pb = build_problem(config.load(CFG, ["case.n=20"]))
+    x = np.asarray(pb.particles.x)
+    vel = np.stack([0.3 - 0.8 * x[:, 1] + 1.1 * x[:, 1] ** 2, 0.2 * x[:, 0] - 0.5 * x[:, 0] ** 2], 1)
+    p = _with_state(pb, np.ones(len(x)), vel, pb.params)
+    (yu, du), (xv, dv) = dev = ghia_deviations(p, pb.params, pb.config, pb.scheme, 1000)
+    yg, ug = ghia.centerline("u", 1000, include_walls=False)
+    xg, vg = ghia.centerline("v", 1000, include_walls=False)
+    np.testing.assert_array_equal(yu, yg)
+    np.testing.assert_array_equal(xv, xg)
+    np.testing.assert_allclose(du, 0.3 - 0.8 * yg + 1.1 * yg**2 - ug, atol=1e-10)
+    np.testing.assert_allclose(dv, 0.2 * xg - 0.5 * xg**2 - vg, atol=1e-10)
+    w = worst_points(dev)
+    ku, kv = np.argmax(np.abs(du)), np.argmax(np.abs(dv))
+    assert w == {"u": [yg[ku], du[ku]], "v": [xg[kv], dv[kv]]}
+    m = cavity_metrics(p, pb.params, pb.config, pb.scheme, 1000)
+    assert m["ghia_u_max_abs_dev"] == abs(w["u"][1]) and m["ghia_v_max_abs_dev"] == abs(w["v"][1])
+    assert m["ghia_u_rms_dev"] == pytest.approx(np.sqrt(np.mean(du**2)), rel=1e-12)
 
 
 # --- boundary-integral walls (thesis eq. 4.24; docs/architecture.md decisions 54, 60, 61) ---------

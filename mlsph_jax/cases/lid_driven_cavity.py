@@ -268,6 +268,27 @@ def centerlines(p: Particles, P, cfg: Mapping, scheme, y_pts, x_pts):
     return mls_interpolate(x, vel[:, 0], pu, h) / u_lid, mls_interpolate(x, vel[:, 1], pv, h) / u_lid
 
 
+def ghia_deviations(p: Particles, P, cfg: Mapping, scheme, re_table: int):
+    """The signed centre-line deviations from Ghia's table ``re_table`` at its interior points
+    (the points of the ``ghia_*`` metrics): ``((y_k, u(L/2, y_k)/u_lid - u_Ghia), (x_k,
+    v(x_k, L/2)/u_lid - v_Ghia))``, positions in units of L."""
+    yg, ug = ghia.centerline("u", re_table, include_walls=False)
+    xg, vg = ghia.centerline("v", re_table, include_walls=False)
+    un, vn = centerlines(p, P, cfg, scheme, yg, xg)
+    return (yg, un - ug), (xg, vn - vg)
+
+
+def worst_points(dev) -> dict[str, list[float]]:
+    """Where the largest deviations sit: for :func:`ghia_deviations`' ``((y_k, du_k), (x_k,
+    dv_k))``, ``{"u": [y, du], "v": [x, dv]}`` at the point of the largest |du| / |dv| (signed:
+    > 0 means the run's velocity is above Ghia's)."""
+    out = {}
+    for name, (pts, d) in zip(("u", "v"), dev, strict=True):
+        k = int(np.argmax(np.abs(d)))
+        out[name] = [float(pts[k]), float(d[k])]
+    return out
+
+
 def cavity_metrics(p: Particles, P, cfg: Mapping, scheme, re_table: int | None) -> dict[str, float]:
     """Metrics of the module docstring."""
     c = cfg["case"]
@@ -281,10 +302,7 @@ def cavity_metrics(p: Particles, P, cfg: Mapping, scheme, re_table: int | None) 
     u_line, _ = centerlines(p, P, cfg, scheme, line, [])
     out = {"kinetic_energy": ke, "u_min_centerline": float(u_line.min())}
     if re_table is not None:
-        yg, ug = ghia.centerline("u", re_table, include_walls=False)
-        xg, vg = ghia.centerline("v", re_table, include_walls=False)
-        un, vn = centerlines(p, P, cfg, scheme, yg, xg)
-        du, dv = un - ug, vn - vg
+        (_, du), (_, dv) = ghia_deviations(p, P, cfg, scheme, re_table)
         out.update({"ghia_u_max_abs_dev": float(np.abs(du).max()), "ghia_v_max_abs_dev": float(np.abs(dv).max()),
                     "ghia_u_rms_dev": float(np.sqrt(np.mean(du**2))), "ghia_v_rms_dev": float(np.sqrt(np.mean(dv**2)))})
     return out
