@@ -37,4 +37,6 @@ def columns(a, axis: int = -1):
     shape plus an add, i.e. cost quadratic in the number of columns (docs/performance.md,
     "Gradients")."""
     axis = axis % a.ndim
+    if a.shape[axis] == 0:
+        return []
     return [jnp.squeeze(c, axis) for c in jnp.split(a, a.shape[axis], axis=axis)]
