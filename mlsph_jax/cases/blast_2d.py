@@ -64,7 +64,7 @@ from ..simulation import Problem
 from ..state import Domain, Kind, Particles, make_particles
 from .base import register_case
 from .common import params_from_config, scheme_from_config
-from .layouts import LAYOUTS, disc_layout, rings
+from .layouts import LAYOUTS, disc_layout, ring_sizes, rings
 
 # --- config schema: the [case] keys and cross-checks (mlsph_jax.config validates with them) ---------
 
@@ -201,15 +201,15 @@ def particle_count(cfg: Mapping) -> tuple[int, tuple[str, ...]]:
     n_r = max(1, round(radius / dx))
     dr = radius / n_r
 
-    def ring_sizes(k0, k1):   # particles of the rings layout's annuli k0 .. k1 - 1
-        return int(np.maximum(1, np.rint(2.0 * np.pi * (np.arange(k0, k1) + 0.5))).sum())
+    def count(k0, k1):   # particles of the rings layout's annuli k0 .. k1 - 1
+        return int(ring_sizes(np.arange(k0, k1)).sum())
 
     if c["layout"] == "rings":
-        fluid, sqrt_vmax = ring_sizes(0, n_r), RINGS_SQRT_VMAX * dr
+        fluid, sqrt_vmax = count(0, n_r), RINGS_SQRT_VMAX * dr
     else:
         fluid, sqrt_vmax = math.ceil(math.pi * radius ** 2 / dx ** 2), DELAUNAY_SQRT_VMAX * dx
     n_frozen = math.ceil(s.support * s.beta * sqrt_vmax * (1 + 1e-12) / dr) + 1
-    return fluid + ring_sizes(n_r, n_r + n_frozen), ("case.radius", "case.dx", "case.layout")
+    return fluid + count(n_r, n_r + n_frozen), ("case.radius", "case.dx", "case.layout")
 
 
 BLAST_2D = register_case(

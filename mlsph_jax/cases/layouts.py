@@ -91,7 +91,7 @@ def rings(radius: float, dx: float) -> tuple[np.ndarray, np.ndarray]:
     dr = radius / n_r
     k = np.arange(n_r)
     r_k = (k + 0.5) * dr
-    n_k = np.maximum(1, np.rint(2.0 * np.pi * (k + 0.5)).astype(np.int64))
+    n_k = ring_sizes(k)
     # annulus k: pi ((k+1)^2 - k^2) dr^2 = pi (2k+1) dr^2
     annulus = np.pi * (2.0 * k + 1.0) * dr * dr
     ring = np.repeat(k, n_k)
@@ -101,6 +101,11 @@ def rings(radius: float, dx: float) -> tuple[np.ndarray, np.ndarray]:
     x = np.stack([r_k[ring] * np.cos(theta), r_k[ring] * np.sin(theta)], axis=1)
     vol = (annulus / n_k)[ring]
     return x, vol
+
+
+def ring_sizes(k) -> np.ndarray:
+    """Particles on ring ``k`` (array) of the :func:`rings` layout: max(1, round(2 pi (k + 1/2)))."""
+    return np.maximum(1, np.rint(2.0 * np.pi * (np.asarray(k) + 0.5)).astype(np.int64))
 
 
 def _disc_vertices(radius: float, dx: float, seed: int) -> np.ndarray:
