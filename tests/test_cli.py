@@ -110,6 +110,7 @@ def test_config_reference_is_current():
     assert (ROOT / "docs/config.md").read_text() == config.config_reference_markdown()
 
 
+@pytest.mark.slow   # two differentiated runs (~30 s) for one printed line: kept out of the default suite's time
 def test_sensitivity_says_which_window_a_time_average_uses(capsys, tmp_path):
     """``--of ke_mean`` without ``--window`` prints one line saying the average is over the whole
     run (start-up included) and how to exclude it; with ``--window`` or an instantaneous
