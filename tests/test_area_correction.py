@@ -88,6 +88,7 @@ def test_linear_correction_is_exact_for_linear_fluxes_only():
     assert _antisymmetry(g) < 1e-13
 
 
+@pytest.mark.slow   # CI time; the perturbed-layout test checks the corrected areas
 def test_correction_leaves_lattice_areas_unchanged():
     """On the lattice the one-point areas already satisfy every row by symmetry: the correction is a
     no-op (the Cartesian runs and their fingerprints do not change)."""

@@ -83,6 +83,7 @@ def test_ssprk3_reproduces_the_builtin_integrator_eulerian(shear):
     assert shear["diffrax"]["ke"] == pytest.approx(shear["builtin"]["ke"], rel=1e-13)
 
 
+@pytest.mark.slow   # CI time; the Eulerian equivalence stays in the default suite
 def test_ssprk3_reproduces_the_builtin_integrator_lagrangian():
     """The same case with moving particles (frame = lagrangian, neighbour list rebuilt at every
     evaluation with the same fixed-capacity spec), through ``ode_term`` + ``diffrax.diffeqsolve``

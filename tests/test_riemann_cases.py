@@ -54,6 +54,7 @@ def test_first_order_l1_bounds(case):
     assert m["l1_rho"] > 0.2 * b_rho
 
 
+@pytest.mark.slow   # CI time; test_first_order_l1_bounds keeps R1 against the exact solution
 def test_first_order_converges_under_refinement_r1():
     errs = [run("r1", n)["metrics"] for n in (100, 200, 400)]
     for key in ("l1_rho", "l1_u", "l1_p"):

@@ -104,6 +104,7 @@ def test_couette_windowed_ke_mean_matches_host_and_finite_differences():
     assert e["verdict"] == "agree" and e["rel_difference"] < 1e-6 and abs(e["gradient"]) > 0, e
 
 
+@pytest.mark.slow   # CI time; the Couette test checks a windowed mean against host and FD
 def test_cylinder_cd_mean_and_cl_rms_match_host_and_finite_differences():
     """The ellipse A = 2 at 5 deg after the impulsive start (8 steps, window [1.5 dt, 7.2 dt]):
     the in-run averages of C_D and C_L (accumulated at every step, ``average=``) equal the host's

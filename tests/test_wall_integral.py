@@ -184,10 +184,13 @@ def test_no_mass_through_walls_and_momentum_balances_the_wall_force():
 
 # --- forces ---------------------------------------------------------------------------------------
 
+# the circle (with its radius derivative) and the polygon are slow (CI time); the rotated ellipse
+# keeps Archimedes in the default suite, and test_shape_sensitivity the shape derivatives
 @pytest.mark.parametrize("curve", [
-    Circle("c", centre=(0.05, 0.1), radius=0.5, n_points=64),
+    pytest.param(Circle("c", centre=(0.05, 0.1), radius=0.5, n_points=64), marks=pytest.mark.slow),
     Ellipse("c", centre=(0.0, -0.1), semi_axes=(0.6, 0.3), angle=0.5, n_points=64),
-    Polygon("c", vertices=((-0.5, -0.4), (0.6, -0.3), (0.1, 0.5)), spacing=0.05),
+    pytest.param(Polygon("c", vertices=((-0.5, -0.4), (0.6, -0.3), (0.1, 0.5)), spacing=0.05),
+                 marks=pytest.mark.slow),
 ])
 def test_buoyancy_is_archimedes_and_uniform_pressure_gives_no_force(curve):
     sch = Scheme(eos="ideal_gas")
@@ -229,7 +232,8 @@ def test_constrained_wall_gradient_is_exact_for_quadratic_profiles():
     assert float(jnp.abs(G2[0, 0, 1] - a)) > 0.5
 
 
-@pytest.mark.parametrize("body", [True, False])
+# without a body is slow (CI time): the body case checks the same search and more
+@pytest.mark.parametrize("body", [True, pytest.param(False, marks=pytest.mark.slow)])
 def test_cell_list_stencils_are_the_brute_force_stencils_bit_for_bit(body):
     """The cell-list wall-stencil search sees the same particles in the same order as the
     O(N_b N) pass: on the lattice (equal distances: ties must break alike) and jittered (no
@@ -277,6 +281,7 @@ def _fixed_walls_case():
     return p, bw, P, loss
 
 
+@pytest.mark.slow   # ~20 s, CI time; the reduced cylinder fingerprints run the searches-once path
 def test_searches_done_once_for_fixed_particles_give_the_same_rate():
     """BoundaryIntegralWalls.fix (what an Eulerian run does once per chunk): the rate of a
     non-uniform viscous state is the per-stage searches' bit for bit, and the in-run check
