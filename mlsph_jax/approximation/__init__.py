@@ -242,34 +242,40 @@ def build_from_offsets(dx, h, vol, idx, mask, spec: ApproxSpec, *,
 TRUNCATED_FILL = 0.9
 
 
+def fill_thresholds(fill, spec: ApproxSpec):
+    """Per-particle pivot-ratio thresholds of the MLS degree fallback from the kernel sums
+    ``fill`` (decision 77): ``spec.truncated_rcond`` where the stencil is truncated (``fill`` <
+    :data:`TRUNCATED_FILL`), ``spec.rcond`` elsewhere.  Carries no gradient (it picks a degree, as
+    the pivot test does)."""
+    fill = jax.lax.stop_gradient(fill)
+    return jnp.where(fill < TRUNCATED_FILL, spec.truncated_rcond, spec.rcond).astype(fill.dtype)
+
+
 def pivot_thresholds(dx, vol_j, mask, h, kernel, spec: ApproxSpec):
-    """Per-particle pivot-ratio thresholds ``[B]`` of the MLS degree fallback (decision 77):
-    ``spec.truncated_rcond`` where the stencil is truncated (kernel sum sum_k V_k W(|dx_k|, h) <
-    :data:`TRUNCATED_FILL`), ``spec.rcond`` elsewhere.  ``dx[B, K, d]``, neighbour volumes
-    ``vol_j[B, K]``, ``mask[B, K]``, ``h[B]``.  Carries no gradient (it picks a degree, as the
-    pivot test does)."""
-    dx, vol_j, h = (jax.lax.stop_gradient(a) for a in (dx, vol_j, h))
+    """:func:`fill_thresholds` ``[B]`` of stencils ``dx[B, K, d]`` with neighbour volumes
+    ``vol_j[B, K]``, ``mask[B, K]``, ``h[B]`` (kernel sum sum_k V_k W(|dx_k|, h))."""
     fill = jnp.sum(jnp.where(mask, vol_j * kernel.w_vec(dx, h[:, None]), 0.0), axis=1)
-    return jnp.where(fill < TRUNCATED_FILL, spec.truncated_rcond, spec.rcond).astype(dx.dtype)
+    return fill_thresholds(fill, spec)
 
 
 def _mls_operators(dx, h, vol, idx, mask, spec: ApproxSpec, coeffs_only: bool) -> ShapeOperators:
     """MLS shape functions of degree ``spec.mls_degree`` (:mod:`.mls`), blocked over rows; the
-    per-particle pivot threshold of :func:`pivot_thresholds` when ``spec.truncated_rcond`` is set."""
+    per-particle pivot thresholds of :func:`fill_thresholds` when ``spec.truncated_rcond`` is set."""
     kern = get_kernel(spec.kernel)
     n, k, d = dx.shape
     q = spec.mls_degree
     m = basis.basis_size(q, d)
-    if spec.truncated_rcond is None:
-        def rc(s, b):
-            return {}
-    else:
-        vol_j = jnp.where(mask, vol[jnp.where(mask, idx, 0)], 0.0)
+    vol_j = None if spec.truncated_rcond is None else jnp.where(mask, vol[jnp.where(mask, idx, 0)], 0.0)
+    small = m <= mls.UNROLL_MAX
 
-        def rc(s, b):
-            return {"rcond": pivot_thresholds(rows(dx, s, b), rows(vol_j, s, b), rows(mask, s, b),
-                                              rows(h, s, b), kern, spec)}
-    if m <= mls.UNROLL_MAX:
+    def rc(s, b):
+        if vol_j is None:
+            return {}
+        if small:   # the block's own kernel weights give the sums (no second kernel pass)
+            return {"vol_j": rows(vol_j, s, b), "thresholds": functools.partial(fill_thresholds, spec=spec)}
+        return {"rcond": pivot_thresholds(rows(dx, s, b), rows(vol_j, s, b), rows(mask, s, b),
+                                          rows(h, s, b), kern, spec)}
+    if small:
         # unrolled small bases, whole row blocks at once
         f = functools.partial(mls.operators_block, kernel=kern, degree=q, rcond=spec.rcond,
                               derivative=spec.derivative, with_coeffs=spec.with_coeffs)
