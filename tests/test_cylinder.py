@@ -230,7 +230,7 @@ def test_builtin_config_meets_the_re40_targets():
     steady state) against issue 17's Re = 40 targets: C_D within 3 % of 1.56, C_p front within 4 %
     of 1.18, base within 8 % of -0.51, L_w / D within 10 % of 2.3 (about 14 min on 2 shared
     cores at load 7).  Measured (docs/validation.md "The front stagnation pressure", cubic
-    reconstruction, rcond 0.1 since decision 75): steady at t = 20, C_D 1.522 and C_p base -0.521
+    reconstruction, first ring quadratic since decisions 75 and 77): steady at t = 20, C_D 1.522 and C_p base -0.521
     meet their targets; C_p front 1.066 and L_w / D 1.74 do not (the wake and the stagnation peak
     are under-resolved at n_theta = 48): C_D must meet its target; the others are reported as an expected failure
     with the measured values (and the test passes once they are met)."""
