@@ -4,7 +4,8 @@ Three approximations lower their degree per particle, silently for the numbers:
 
 * MLS (``approximation = "mls"``/``"shepard"``; the fixed-centre fit of the reconstruction and
   the viscous gradients): the pivot-ratio fallback of :mod:`mlsph_jax.approximation.mls`
-  (decision 2: a degree level whose pivot ratio s_j / M_jj < ``scheme.rcond`` is dropped);
+  (decision 2: a degree level whose pivot ratio s_j / M_jj < ``scheme.rcond`` is dropped;
+  ``scheme.wall_rcond`` in truncated stencils, decision 77);
 * ``corrected``: the Randles-Libersky gradient (exact for linear fields, degree 1) falls back to
   the kernel gradient (degree 0) where the renormalisation matrix is singular;
 * fixed-centre derivatives (``scheme.derivative = "fixed_centre"``, and the fit, which is always
@@ -104,13 +105,13 @@ def update_stats(stats, fractions):
 
 def _what(scheme) -> dict[str, str]:
     approx = scheme.approximation
+    rc = f"scheme.rcond = {scheme.rcond:g}, truncated stencils scheme.wall_rcond = {scheme.wall_fit_rcond:g}"
     area = (f"corrected -> kernel gradient fallback (scheme.approximation = {approx!r})" if approx == "corrected"
-            else f"MLS degree fallback of the area shape functions (scheme.approximation = {approx!r}, "
-                 f"scheme.rcond = {scheme.rcond:g})")
+            else f"MLS degree fallback of the area shape functions (scheme.approximation = {approx!r}, {rc})")
     return {"area_reduced": area,
             "area_zero_gradient": "exactly zero fixed-centre derivatives at degree-0 particles (scheme.derivative = "
                                   "'fixed_centre')",
-            "fit_reduced": f"MLS degree fallback of the reconstruction/viscous fit (scheme.rcond = {scheme.rcond:g})",
+            "fit_reduced": f"MLS degree fallback of the reconstruction/viscous fit ({rc})",
             "fit_zero_gradient": "exactly zero gradients of the reconstruction/viscous fit at degree-0 particles"}
 
 

@@ -93,6 +93,10 @@ class Scheme:
                               delta_rel of eq. 3.13, PAD/NAD switches, iteration bound
     eos:                      EOS kind
     rcond:                    MLS degree-fallback threshold (pivot ratio; decision 2)
+    wall_rcond:               the threshold of the MLS fits (area shape functions, reconstruction
+                              and viscous fit) whose stencil a boundary truncates (the rows at
+                              boundary-integral walls, the edge of a frozen far field) and of the
+                              fits at wall points; max(rcond, wall_rcond) is used (decision 77)
     """
 
     method: str = "mlsph_ale"
@@ -130,6 +134,7 @@ class Scheme:
     mood_max_iter: int = 8
     eos: str = "ideal_gas"
     rcond: float = 1e-2
+    wall_rcond: float = 0.1
 
     def __post_init__(self):
         for field, reg in COMPONENTS.items():
@@ -153,6 +158,9 @@ class Scheme:
                 raise InputError(f"invalid scheme.{name}={v!r}; allowed: an integer in 0..3")
         if not 0.0 <= self.rcond < 1.0:
             raise InputError(f"invalid scheme.rcond={self.rcond!r}; allowed: 0 <= rcond < 1")
+        w = self.wall_rcond
+        if isinstance(w, bool) or not isinstance(w, int | float) or not 0.0 <= w < 1.0:
+            raise InputError(f"invalid scheme.wall_rcond={w!r}; allowed: a float with 0 <= wall_rcond < 1")
         if not self.beta > 0:
             raise InputError(f"invalid scheme.beta={self.beta!r}; allowed: > 0")
         if not (self.mood_delta_abs >= 0 and self.mood_delta_rel >= 0):
@@ -257,9 +265,16 @@ class Scheme:
         approx = self.component("approximation")
         reuse = approx.has_coeffs and approx.basis_degree(self.degree) == self.fit_degree
         return ApproxSpec(self.approximation, self.degree, self.kernel, self.derivative, self.rcond,
-                          with_coeffs=reuse and self.needs_fit)
+                          with_coeffs=reuse and self.needs_fit, wall_rcond=float(self.wall_rcond))
 
     def reconstruction_spec(self) -> ApproxSpec:
         """Fixed-centre MLS fit used for the reconstruction, SPH-ALE Taylor derivatives and the
         viscous gradients."""
-        return ApproxSpec("mls", self.fit_degree, self.kernel, "fixed_centre", self.rcond, with_coeffs=True)
+        return ApproxSpec("mls", self.fit_degree, self.kernel, "fixed_centre", self.rcond, with_coeffs=True,
+                          wall_rcond=float(self.wall_rcond))
+
+    @property
+    def wall_fit_rcond(self) -> float:
+        """Pivot threshold of the fits at wall points (the wall state, the constrained wall fit)
+        and of truncated stencils: max(rcond, wall_rcond) (decision 77)."""
+        return max(float(self.rcond), float(self.wall_rcond))

@@ -21,8 +21,9 @@ from .config.builtin import CONFIG_DIR, builtin_configs  # noqa: F401  (re-expor
 REDUCED_OVERRIDES: dict[str, tuple[str, ...]] = {
     "blast_2d": ("case.dx=8e-3", "time.t_end=5e-6"),
     "couette": ("case.ny=10", "case.nx=8", "time.t_end=0.2", "output.snapshots=2"),
-    # cubic since issue 17's front-pressure study, rcond 0.1 since decision 75: the reduced layout's first ring, 10 %
-    # of its fluid particles, on a quadratic fit (the shipped layout's 2.8 %): expected, not warned; as below
+    # cubic since issue 17's front-pressure study, first ring quadratic since decisions 75/77: the reduced
+    # layout's first ring, 10 % of its fluid particles, on a quadratic fit (the shipped layout's 2.8 %):
+    # expected, not warned; as below
     "cylinder": ("case.n_theta=32", "case.r_far=3.0", "time.t_end=0.2", "output.snapshots=2",
                  "output.degree_fallback_warn=0.15"),
     # the reduced layout has 8.3 % of its particles (its first ring) on a quadratic fit (the shipped one 2.8 %).

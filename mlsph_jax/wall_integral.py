@@ -319,7 +319,7 @@ class BoundaryIntegralWalls:
         st = self.fixed[0] if self.fixed is not None else self.stencils(p, bp.x)
         kern = get_kernel(self.kernel)
         vals, _, _, _ = mls.operators_block(st.dx, st.mask, st.h, kernel=kern, degree=WALL_STATE_DEGREE,
-                                            rcond=scheme.rcond, derivative="fixed_centre", with_coeffs=False)
+                                            rcond=scheme.wall_fit_rcond, derivative="fixed_centre", with_coeffs=False)
         interp = lambda f: jnp.einsum("bk,bk...->b...", vals, f[st.idx])  # noqa: E731
         rho_b, c_b = interp(prim.rho), interp(prim.c)
         vn = jnp.sum((interp(prim.vel) - bp.velocity) * bp.normal, axis=-1)       # into the wall
@@ -328,7 +328,7 @@ class BoundaryIntegralWalls:
         pb = interp(prim.p) + rho_b * vn * (vn + jnp.abs(vn) + c_b)
         tn = jnp.zeros_like(bp.x)
         if scheme.viscous and any(self.no_slip):
-            G = constrained_gradient(st, prim.vel, bp.velocity, kern, scheme.fit_degree, scheme.rcond)
+            G = constrained_gradient(st, prim.vel, bp.velocity, kern, scheme.fit_degree, scheme.wall_fit_rcond)
             D = wall_flux(G, bp.velocity, params["physics.mu"], scheme)          # [Nb, nv, d]
             noslip = jnp.asarray(self.no_slip)[bp.curve]
             d = bp.x.shape[1]

@@ -703,6 +703,8 @@ def test_scale_invariance(s):
         (dict(kernel="gaussian"), "kernel"),
         (dict(rcond=1.0), "rcond"),
         (dict(rcond=-1e-3), "rcond"),
+        (dict(wall_rcond=1.0), "wall_rcond"),
+        (dict(wall_rcond=-0.1), "wall_rcond"),
     ],
 )
 def test_approx_spec_rejects_bad_arguments(kwargs, argument):
@@ -756,3 +758,33 @@ def test_row_blocked_build_equals_one_block(d, q, monkeypatch):
     for name in ("values", "gradients", "coeffs"):  # equal up to the vectorisation's round-off
         ref, got = np.asarray(getattr(one, name)), np.asarray(getattr(blocked, name))
         np.testing.assert_allclose(got, ref, rtol=0, atol=1e-13 * np.abs(ref).max(), err_msg=name)
+
+
+@pytest.mark.parametrize("d, q", [(2, 2), (3, 3)])
+def test_truncated_stencils_take_the_wall_threshold(d, q):
+    """Decision 77: with ``wall_rcond`` the rows whose kernel sum sum_j V_j W(x_j - x_i, h_i) is
+    below ``TRUNCATED_FILL`` (here the rows at the faces of a non-periodic box) get the degree
+    fallback of ``max(rcond, wall_rcond)``, every other row that of ``rcond``: the operators equal,
+    row by row, those built with either threshold alone (fixed-centre; 2D quadratic: the unrolled
+    path, 3D cubic: the vmapped one).  The kernel sum is recomputed here from the definition."""
+    from mlsph_jax.approximation import TRUNCATED_FILL
+
+    c = cloud(d, "jittered", False, BETA[d][q])
+    kern = get_kernel("cubic_spline")
+    fill = np.sum(np.where(c.mask, c.vol[c.safe] * np.asarray(kern.w_vec(jnp.asarray(c.offsets()),
+                                                                          jnp.asarray(c.h)[:, None])), 0.0), axis=1)
+    cut = fill < TRUNCATED_FILL
+    assert 0 < cut.sum() < len(cut)
+    a, L, per = c.args()
+
+    def ops(rcond, wall=None):
+        spec = ApproxSpec("mls", q, "cubic_spline", "fixed_centre", rcond, with_coeffs=True, wall_rcond=wall)
+        return jax.tree_util.tree_map(np.asarray, build(*a, spec, L, per))
+
+    rule, lo, hi = ops(1e-6, 0.3), ops(1e-6), ops(0.3)
+    assert np.any(lo.degree[cut] != hi.degree[cut])          # the threshold decides some truncated rows
+    for name in ("values", "gradients", "coeffs", "degree"):
+        r, a_lo, a_hi = getattr(rule, name), getattr(lo, name), getattr(hi, name)
+        np.testing.assert_array_equal(r[cut], a_hi[cut], err_msg=name)
+        np.testing.assert_array_equal(r[~cut], a_lo[~cut], err_msg=name)
+    assert ApproxSpec(rcond=0.3, wall_rcond=1e-6).truncated_rcond is None   # never below rcond

@@ -176,6 +176,8 @@ def test_wrong_types(table, line, key, value, why):
     ("scheme", "reconstruction_degree = -1", "scheme.reconstruction_degree", "int in [0, 3]"),
     ("scheme", "beta = -1.0", "scheme.beta", "float >= 0.0"),
     ("scheme", "neighbor_headroom = 0.9", "scheme.neighbor_headroom", "float >= 1.0"),
+    ("scheme", "wall_rcond = 1.0", "scheme.wall_rcond", "float in [0.0, 1.0)"),
+    ("scheme", "wall_rcond = -0.1", "scheme.wall_rcond", "float in [0.0, 1.0)"),
     ("time", "cfl = 0", "time.cfl", "float in (0.0, 1.0]"),
     ("time", "cfl = 1.5", "time.cfl", "float in (0.0, 1.0]"),
     ("time", "max_steps = 0", "time.max_steps", "int >= 1"),
@@ -191,6 +193,16 @@ def test_range_and_choice_errors(table, line, key, allowed):
     text = SOD.replace("n = 200\n", "") if key == "case.n" else SOD
     msg = _err(_with(text, table, line))
     assert f"invalid {key}=" in msg and f"allowed: {allowed}" in msg
+
+
+@pytest.mark.parametrize("value", [1.0, -0.1, float("nan"), "0.1", True])
+def test_scheme_wall_rcond_checked_in_the_api(value):
+    """The threshold of truncated stencils (decision 77) built without a config file: a clear
+    InputError naming the key, the value and the allowed range."""
+    from mlsph_jax.scheme import Scheme
+
+    with pytest.raises(InputError, match=r"scheme\.wall_rcond=.*allowed: a float with 0 <= wall_rcond < 1"):
+        Scheme(wall_rcond=value)
 
 
 def test_fixed_length_list_and_body_force_dimension():

@@ -164,20 +164,64 @@ def test_coarse_re40_drag_in_band():
     assert 0.6 < m["cd_pressure"] / cd < 0.75, m
 
 
+ELLIPSE = ('case.body="ellipse"', "case.aspect=2.0", "case.alpha=5.0")
+
+
 def test_builtin_scheme_survives_the_impulsive_start_on_a_coarse_ellipse():
     """The config's cubic reconstruction on the strongly curved, coarse body of the shape studies
-    (ellipse A = 2 at 5 deg, 32 points, far field at 3 D, Mach 0.2, global steps): the fits of the
-    first rings are one-sided, and with the scheme default rcond = 1e-2 some keep a barely
-    conditioned cubic (pivot ratio between 0.01 and 0.1) that blew up in step 1 (and at step 7 at
-    the thesis' n_theta = 120 around the circle).  The config's rcond = 0.1 drops those fits to
-    quadratic (docs/architecture.md decision 75): the start-up must stay finite (0.3 time units,
-    ~34 steps; with rcond = 0.01 the run stops with a non-finite state in step 1)."""
-    cfg, pb = _problem('case.body="ellipse"', "case.aspect=2.0", "case.alpha=5.0", "case.mach=0.2",
+    (ellipse A = 2 at 5 deg, 32 points, far field at 3 D, Mach 0.2, global steps) with the scheme's
+    default thresholds: the fits of the first ring are one-sided, and with rcond = 1e-2 alone some
+    keep a barely conditioned cubic (pivot ratio between 0.01 and 0.1) that blew up in step 1 (and
+    at step 7 at the thesis' n_theta = 120 around the circle).  The truncated-stencil threshold
+    scheme.wall_rcond = 0.1 drops those fits to quadratic (docs/architecture.md decisions 75, 77):
+    the start-up must stay finite (0.3 time units, ~34 steps; with scheme.wall_rcond = 0.01 the
+    run stops with a non-finite state in step 1)."""
+    cfg, pb = _problem(*ELLIPSE, "case.mach=0.2", "scheme.rcond=0.01",
                        "time.local_time_stepping=false", "time.t_end=0.3", "output.snapshots=1",
                        "output.degree_fallback_warn=0.15")    # 10 %: the first ring of this small layout
     s = run_problem(pb, cfg, out_dir=None, quiet=True).summary
     assert s["status"] == "ok", s["status"]
     assert s["n_steps"] > 20 and np.isfinite(s["metrics"]["cd"]), s["metrics"]
+
+
+def test_one_sided_first_ring_fits_fall_back_by_the_wall_threshold():
+    """Decision 77 on the coarse ellipse (the layout above) with rcond = 0.01 and the default
+    wall_rcond = 0.1: exactly the first ring (the 32 fluid particles nearest the body; their
+    stencils are cut by the boundary-integral wall) fits quadratically, every other particle
+    cubically (rcond = 0.01 alone: 16 of the 32, the rest with pivot ratios 0.01-0.1).  Checked by
+    what the fits reproduce: the gradient of a cubic field is exact at the other particles and
+    not at the first ring, where the gradient of a quadratic field is exact."""
+    from mlsph_jax import neighbors
+    from mlsph_jax.rhs import geometry
+    from mlsph_jax.wall_integral import fit_gradient
+
+    _, pb = _problem(*ELLIPSE, "scheme.rcond=0.01")
+    p = pb.particles
+    _, nl = neighbors.allocate(p.x, pb.scheme.beta * p.vol ** 0.5, pb.domain)
+    geom = geometry(p.x, p.vol, nl, pb.scheme, pb.domain)
+    x = np.asarray(p.x)
+    fluid = np.flatnonzero(np.asarray(p.kind) == Kind.FLUID)
+    xb = np.asarray(pb.boundary.points(pb.params).x)
+    dist = np.min(np.linalg.norm(x[fluid, None] - xb[None], axis=-1), axis=1)
+    order = np.argsort(dist)
+    assert dist[order[31]] < 0.6 * dist[order[32]]         # the first ring is the 32 nearest, by a gap
+    first = np.zeros(len(x), bool)
+    first[fluid[order[:32]]] = True
+    deg = np.asarray(geom.degree)[:, 1]
+    assert np.all(deg[first] == 2) and np.all(deg[fluid[order[32:]]] == 3), np.unique(deg[fluid], return_counts=True)
+
+    def error(f, grad, rows):
+        g = np.asarray(fit_gradient(geom, jnp.asarray(f(x)), 3, jnp.asarray(rows)))
+        return np.max(np.abs(g - grad(x[rows])), axis=1) / np.max(np.abs(grad(x[rows])))
+
+    cubic = (lambda y: y[:, 0] ** 3 - 2 * y[:, 0] * y[:, 1] ** 2 + y[:, 1] ** 3,
+             lambda y: np.stack([3 * y[:, 0] ** 2 - 2 * y[:, 1] ** 2, -4 * y[:, 0] * y[:, 1] + 3 * y[:, 1] ** 2], 1))
+    quad = (lambda y: y[:, 0] ** 2 - 3 * y[:, 0] * y[:, 1] + 2 * y[:, 1] ** 2,
+            lambda y: np.stack([2 * y[:, 0] - 3 * y[:, 1], -3 * y[:, 0] + 4 * y[:, 1]], 1))
+    far_ok = np.flatnonzero(np.isin(np.arange(len(x)), fluid) & ~first)
+    assert np.max(error(*cubic, far_ok)) < 1e-8
+    assert np.max(error(*quad, np.flatnonzero(first))) < 1e-8
+    assert np.min(error(*cubic, np.flatnonzero(first))) > 1e-4
 
 
 @pytest.mark.slow
@@ -186,7 +230,7 @@ def test_builtin_config_meets_the_re40_targets():
     steady state) against issue 17's Re = 40 targets: C_D within 3 % of 1.56, C_p front within 4 %
     of 1.18, base within 8 % of -0.51, L_w / D within 10 % of 2.3 (about 14 min on 2 shared
     cores at load 7).  Measured (docs/validation.md "The front stagnation pressure", cubic
-    reconstruction, rcond 0.1 since decision 75): steady at t = 20, C_D 1.522 and C_p base -0.521
+    reconstruction, first ring quadratic since decisions 75 and 77): steady at t = 20, C_D 1.522 and C_p base -0.521
     meet their targets; C_p front 1.066 and L_w / D 1.74 do not (the wake and the stagnation peak
     are under-resolved at n_theta = 48): C_D must meet its target; the others are reported as an expected failure
     with the measured values (and the test passes once they are met)."""

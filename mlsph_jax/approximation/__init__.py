@@ -51,7 +51,9 @@ DERIVATIVES = ("full", "fixed_centre")
 class ApproxSpec:
     """Static, hashable choice of approximation (a jit static argument).
 
-    ``rcond`` is the pivot-ratio threshold of the MLS degree fallback (see :mod:`.mls`).
+    ``rcond`` is the pivot-ratio threshold of the MLS degree fallback (see :mod:`.mls`);
+    ``wall_rcond`` (None: not used) the threshold of the particles whose stencil a boundary
+    truncates (:func:`pivot_thresholds`, docs/architecture.md decision 77).
     """
 
     approximation: str = "mls"
@@ -60,6 +62,7 @@ class ApproxSpec:
     derivative: str = "full"
     rcond: float = 1e-6
     with_coeffs: bool = False
+    wall_rcond: float | None = None
 
     def __post_init__(self):
         APPROXIMATIONS.get(self.approximation, "approximation")
@@ -70,6 +73,16 @@ class ApproxSpec:
             raise InputError(f"invalid derivative={self.derivative!r}; allowed: {', '.join(DERIVATIVES)}")
         if not (0.0 <= self.rcond < 1.0):
             raise InputError(f"invalid rcond={self.rcond!r}; allowed: 0 <= rcond < 1")
+        if self.wall_rcond is not None and not (0.0 <= self.wall_rcond < 1.0):
+            raise InputError(f"invalid wall_rcond={self.wall_rcond!r}; allowed: 0 <= wall_rcond < 1, or None")
+
+    @property
+    def truncated_rcond(self) -> float | None:
+        """The threshold of truncated stencils when it differs from ``rcond`` (else None):
+        ``max(rcond, wall_rcond)``, so it never lowers the threshold below ``rcond``."""
+        if self.wall_rcond is None or self.wall_rcond <= self.rcond:
+            return None
+        return float(self.wall_rcond)
 
     @property
     def mls_degree(self) -> int | None:
@@ -220,13 +233,49 @@ def build_from_offsets(dx, h, vol, idx, mask, spec: ApproxSpec, *,
                                                                          coeffs_only=coeffs_only)
 
 
+#: A stencil whose kernel sum sum_j V_j W(x_j - x_i, h_i) is below this is *truncated* (a support
+#: cut by a boundary-integral wall or a free boundary; decision 77): its MLS fit uses
+#: ``ApproxSpec.truncated_rcond``.  Complete supports have 1 to a few per cent (lattices 1.003,
+#: the graded polar rings 0.998-1.003, mirror ghosts and frozen far-field particles complete the
+#: wall and outer rows, a lattice jittered by 0.3 dx: >= 0.84); a row half a spacing from a
+#: straight or curved wall 0.53-0.76 (experiments/one_sided_fits.py).
+TRUNCATED_FILL = 0.9
+
+
+def fill_thresholds(fill, spec: ApproxSpec):
+    """Per-particle pivot-ratio thresholds of the MLS degree fallback from the kernel sums
+    ``fill`` (decision 77): ``spec.truncated_rcond`` where the stencil is truncated (``fill`` <
+    :data:`TRUNCATED_FILL`), ``spec.rcond`` elsewhere.  Carries no gradient (it picks a degree, as
+    the pivot test does)."""
+    fill = jax.lax.stop_gradient(fill)
+    return jnp.where(fill < TRUNCATED_FILL, spec.truncated_rcond, spec.rcond).astype(fill.dtype)
+
+
+def pivot_thresholds(dx, vol_j, mask, h, kernel, spec: ApproxSpec):
+    """:func:`fill_thresholds` ``[B]`` of stencils ``dx[B, K, d]`` with neighbour volumes
+    ``vol_j[B, K]``, ``mask[B, K]``, ``h[B]`` (kernel sum sum_k V_k W(|dx_k|, h))."""
+    fill = jnp.sum(jnp.where(mask, vol_j * kernel.w_vec(dx, h[:, None]), 0.0), axis=1)
+    return fill_thresholds(fill, spec)
+
+
 def _mls_operators(dx, h, vol, idx, mask, spec: ApproxSpec, coeffs_only: bool) -> ShapeOperators:
-    """MLS shape functions of degree ``spec.mls_degree`` (:mod:`.mls`), blocked over rows."""
+    """MLS shape functions of degree ``spec.mls_degree`` (:mod:`.mls`), blocked over rows; the
+    per-particle pivot thresholds of :func:`fill_thresholds` when ``spec.truncated_rcond`` is set."""
     kern = get_kernel(spec.kernel)
     n, k, d = dx.shape
     q = spec.mls_degree
     m = basis.basis_size(q, d)
-    if m <= mls.UNROLL_MAX:
+    vol_j = None if spec.truncated_rcond is None else jnp.where(mask, vol[jnp.where(mask, idx, 0)], 0.0)
+    small = m <= mls.UNROLL_MAX
+
+    def rc(s, b):
+        if vol_j is None:
+            return {}
+        if small:   # the block's own kernel weights give the sums (no second kernel pass)
+            return {"vol_j": rows(vol_j, s, b), "thresholds": functools.partial(fill_thresholds, spec=spec)}
+        return {"rcond": pivot_thresholds(rows(dx, s, b), rows(vol_j, s, b), rows(mask, s, b),
+                                          rows(h, s, b), kern, spec)}
+    if small:
         # unrolled small bases, whole row blocks at once
         f = functools.partial(mls.operators_block, kernel=kern, degree=q, rcond=spec.rcond,
                               derivative=spec.derivative, with_coeffs=spec.with_coeffs)
@@ -235,7 +284,7 @@ def _mls_operators(dx, h, vol, idx, mask, spec: ApproxSpec, coeffs_only: bool) -
             f = functools.partial(f, derivative="fixed_centre")
 
             def cblk(s, b):
-                _, _, coeffs, deg = f(rows(dx, s, b), rows(mask, s, b), rows(h, s, b))
+                _, _, coeffs, deg = f(rows(dx, s, b), rows(mask, s, b), rows(h, s, b), **rc(s, b))
                 return deg, coeffs
 
             deg, coeffs = row_blocks(cblk, n, block, [((n,), jnp.int32), ((n, m, k), dx.dtype)])
@@ -252,7 +301,7 @@ def _mls_operators(dx, h, vol, idx, mask, spec: ApproxSpec, coeffs_only: bool) -
         outputs.append(((n, m, k), dx.dtype))
 
     def blk(s, b):
-        values, grads, coeffs, deg = f(rows(dx, s, b), rows(mask, s, b), rows(h, s, b))
+        values, grads, coeffs, deg = f(rows(dx, s, b), rows(mask, s, b), rows(h, s, b), **rc(s, b))
         return (values, grads, deg) + ((coeffs,) if spec.with_coeffs else ())
 
     out = row_blocks(blk, n, block, outputs)

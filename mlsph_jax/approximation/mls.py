@@ -356,10 +356,13 @@ def chol_solve_lists(L, B):
 
 
 def operators_block(dx, mask, h, *, kernel: Kernel, degree: int, rcond: float, derivative: str,
-                    with_coeffs: bool):
+                    with_coeffs: bool, vol_j=None, thresholds=None):
     """:func:`particle_operators` for a block of particles at once.
 
-    dx[B, K, d] offsets x_k - x_e, mask[B, K], h[B].  Returns values[B, K], gradients[B, K, d],
+    dx[B, K, d] offsets x_k - x_e, mask[B, K], h[B]; ``rcond`` a float or per-particle
+    thresholds [B]; or, with the neighbour volumes ``vol_j[B, K]``, the thresholds
+    ``thresholds(fill)[B]`` of the kernel sums fill = sum_k V_k W(|dx_k|, h) (decision 77).
+    Returns values[B, K], gradients[B, K, d],
     coefficients[B, m, K] (or None) and the active degree[B].
     """
     out_dtype = dx.dtype
@@ -385,7 +388,9 @@ def operators_block(dx, mask, h, *, kernel: Kernel, degree: int, rcond: float, d
     M = [[None] * m for _ in range(m)]
     for (a, b), s in zip(tri, sums, strict=True):
         M[a][b] = M[b][a] = s[:, None]
-    L, ok = cholesky_lists(M, rcond)
+    if thresholds is not None:
+        rcond = thresholds(jnp.sum(w * vol_j.astype(w.dtype), axis=1))
+    L, ok = cholesky_lists(M, rcond if jnp.ndim(rcond) == 0 else jnp.reshape(rcond, (-1, 1)))
     run, levels = None, []
     for lev in range(degree + 1):               # prefix by degree level (active_monomials)
         for j in np.flatnonzero(mdeg == lev):

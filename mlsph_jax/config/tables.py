@@ -134,6 +134,14 @@ SCHEME_KEYS: dict[str, Key] = {
                      "s_j / M_jj of its monomials falls below rcond (architecture decision 2; "
                      "lattice stencils have >= 0.2, stretched moving-particle stencils reach "
                      "1e-3, docs/moving_particles.md)"),
+    "wall_rcond": Key(float, 0.1, minimum=0.0, maximum=1.0, exclusive_maximum=True,
+                      doc="pivot-ratio threshold of the MLS fits (area shape functions, reconstruction/"
+                          "viscous fit) whose stencil a boundary truncates (kernel sum sum_j V_j W_ij < "
+                          "0.9: the rows at boundary-integral walls, the edge of a frozen far field; "
+                          "mirror ghosts complete the stencils at their walls) and of the fits at wall "
+                          "points; max(rcond, wall_rcond) is used. "
+                          "One-sided cubic fits with pivot ratios 0.01-0.1 blew up at the impulsive "
+                          "start of the cylinder (architecture decisions 75, 77)"),
     "limiter": Key(str, "none", choices=names_of("scheme.limiter"),
                    doc="a-posteriori limiter: none or MOOD (local reduction of the "
                        "reconstruction degree)"),
