@@ -150,6 +150,9 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme, bo
     frame = scheme.component("frame")
     w = frame.velocity(U, kind, eos, params)
     dw = frame.drift(w, geom, kind, scheme, vol)
+    at_walls = getattr(boundary, "drift_at_walls", None)
+    if dw is not None and at_walls is not None:       # no drift into boundary-integral walls
+        dw = at_walls(particles, params, dw)
     jsafe = geom.jsafe
     eulerian = not frame.moving
     ghosts = None if eulerian else getattr(boundary, "ghost_frame_velocity", None)

@@ -312,6 +312,28 @@ class BoundaryIntegralWalls:
         """``(stencils, rows, rows_overflow)`` at the wall points ``xb``: the fixed ones if set."""
         return self.fixed if self.fixed is not None else (self.stencils(p, xb), *self.near_rows(p, xb))
 
+    # -- the shifting drift at the walls ----------------------------------------------------
+    def drift_at_walls(self, p: Particles, params, dw):
+        """The shifting drift ``dw`` without its component normal to the walls (decision 78).
+
+        A particle whose support reaches a wall has no neighbours beyond it, so the shifting laws
+        (which move particles from where neighbours crowd to where they are missing) drive it
+        into the wall; mirror ghosts fill that part of the support, boundary-integral walls do
+        not.  Every particle in the stencil of a wall point loses the component of dw_i along the
+        wall's mean normal n_i = sum_b dGamma_b W(x_i - x_b, h_b) n_b / |...| (both signs: a
+        drift along n_i makes (u - w) . n nonzero in the wall rows, where the self term and the
+        first-moment correction of the boundary integral, decision 54, then carry mass through
+        the wall); drift along the wall is kept, and every other particle keeps its drift."""
+        bp = self.points(params)
+        st = self.fixed[0] if self.fixed is not None else self.stencils(p, bp.x)
+        kern = get_kernel(self.kernel)
+        wgt = jnp.where(st.mask, kern.w_vec(st.dx, st.h[:, None]), 0.0) * bp.dgamma[:, None]   # [Nb, K]
+        rows = wgt[..., None] * bp.normal[:, None, :]                                          # [Nb, K, d]
+        n_i = jnp.zeros_like(dw).at[st.idx.reshape(-1)].add(rows.reshape(-1, dw.shape[1]), mode="drop")
+        norm = jnp.sqrt(jnp.sum(n_i * n_i, axis=-1, keepdims=True))
+        unit = n_i / jnp.where(norm > 0, norm, 1.0)
+        return dw - jnp.sum(dw * unit, axis=-1, keepdims=True) * unit
+
     # -- the wall fluxes ---------------------------------------------------------------------
     def wall_state(self, p: Particles, params, scheme, prim):
         """``(points, stencils, N_j(x_b)[Nb, K], p_b[Nb], tau_b n_b [Nb, d])`` for a state."""
