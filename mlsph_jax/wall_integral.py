@@ -330,8 +330,9 @@ class BoundaryIntegralWalls:
         wgt = jnp.where(st.mask, kern.w_vec(st.dx, st.h[:, None]), 0.0) * bp.dgamma[:, None]   # [Nb, K]
         rows = wgt[..., None] * bp.normal[:, None, :]                                          # [Nb, K, d]
         n_i = jnp.zeros_like(dw).at[st.idx.reshape(-1)].add(rows.reshape(-1, dw.shape[1]), mode="drop")
-        norm = jnp.sqrt(jnp.sum(n_i * n_i, axis=-1, keepdims=True))
-        unit = n_i / jnp.where(norm > 0, norm, 1.0)
+        s2 = jnp.sum(n_i * n_i, axis=-1, keepdims=True)
+        unit = n_i / jnp.sqrt(jnp.where(s2 > 0, s2, 1.0))     # 0 beyond the walls' stencils (and
+        #                                                       no NaN in its derivative there)
         return dw - jnp.sum(dw * unit, axis=-1, keepdims=True) * unit
 
     # -- the wall fluxes ---------------------------------------------------------------------
