@@ -1,15 +1,18 @@
 """What the gradient of one right-hand side costs, piece by piece, with and without the per-block
-rematerialisation of the stencil passes (:func:`mlsph_jax.approximation.block_remat`).  Not a test.
+rematerialisation of the stencil passes (:func:`mlsph_jax.approximation.block_remat`, ``--ab
+remat``) or the scanned-block derivative of the blocked passes
+(:func:`mlsph_jax.approximation.block_scan`, ``--ab scan``, the default).  Not a test.
 
 Taylor-Green (``configs/taylor_green_2d.toml``, n x n, Eulerian, geometry fixed).  Pieces:
 ``mid`` (reconstruction fit and midpoint states, a blocked pass), ``visc`` (viscous fluxes,
 unblocked), ``full`` (:func:`mlsph_jax.rhs.rhs`: both plus the blocked flux sweep).  For each,
 the forward and ``jax.vjp`` (forward + pullback, w.r.t. the conserved fields) are compiled ahead
-of time and timed interleaved (remat on, off, on, off, ...); the figure is the best CPU time of
+of time and timed interleaved (switch on, off, on, off, ...); the figure is the best CPU time of
 this process over ``--repeat`` calls (``time.process_time``: on a shared machine it moves less
 with the load than wall time; both are printed).  Prints the load average beside every row.
 
-    python experiments/profile_gradient.py [--n 50] [--repeat 7] [--rounds 2]
+    python experiments/profile_gradient.py [--n 50] [--repeat 7] [--rounds 2] [--ab scan|remat]
+        [--pieces mid visc full]
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ import jax
 import jax.numpy as jnp
 
 from mlsph_jax import config
-from mlsph_jax.approximation import block_remat
+from mlsph_jax.approximation import block_remat, block_scan
 from mlsph_jax.cases import build_problem
 from mlsph_jax.eos import get_eos, to_primitive
 from mlsph_jax.rhs import rhs
@@ -67,24 +70,28 @@ def main():
     ap.add_argument("--n", type=int, default=50, help="particles per side")
     ap.add_argument("--repeat", type=int, default=7)
     ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--ab", choices=("scan", "remat"), default="scan", help="which trace-time switch to compare")
+    ap.add_argument("--pieces", nargs="+", choices=("mid", "visc", "full"), default=["mid", "visc", "full"])
     args = ap.parse_args()
     q, fns = pieces(args.n)
+    fns = {k: fns[k] for k in args.pieces}
+    switch = {"scan": block_scan, "remat": block_remat}[args.ab]
     progs = {}
     for remat in (True, False):
         for name, f in fns.items():
             y = f(q)
             ct = jnp.cos(0.1 * jnp.arange(y.size, dtype=y.dtype)).reshape(y.shape)
-            with block_remat(remat):
+            with switch(remat):
                 fwd = jax.jit(f).lower(q).compile()
                 vjp = jax.jit(lambda q, f=f, ct=ct: jax.vjp(f, q)[1](ct)).lower(q).compile()
             progs[(name, remat)] = (fwd, vjp)
-    print(f"Taylor-Green {args.n}x{args.n}: best of {args.repeat}, CPU ms (wall ms)")
+    print(f"Taylor-Green {args.n}x{args.n}: best of {args.repeat}, CPU ms (wall ms); switch: block {args.ab}")
     for r in range(args.rounds):
         for name in fns:
             for remat in (True, False):
                 fwd, vjp = progs[(name, remat)]
                 (wf, cf), (wv, cv) = best(fwd, q, args.repeat), best(vjp, q, args.repeat)
-                print(f"round {r} {name:5s} block remat {'on ' if remat else 'off'}: forward {cf * 1e3:7.2f} "
+                print(f"round {r} {name:5s} block {args.ab} {'on ' if remat else 'off'}: forward {cf * 1e3:7.2f} "
                       f"({wf * 1e3:7.2f})  vjp {cv * 1e3:7.2f} ({wv * 1e3:7.2f})  vjp/forward {cv / cf:5.2f}  "
                       f"load {os.getloadavg()[0]:.1f}", flush=True)
 
