@@ -33,8 +33,8 @@ import dataclasses
 import functools
 
 import jax
+import jax.extend.core as jex
 import jax.numpy as jnp
-import numpy as np
 
 from ..errors import InputError
 from ..kernels import get_kernel
@@ -213,19 +213,42 @@ def _loop_blocks(fn, n, block, outputs):
 
 
 def _scan_blocks(fn, n, block, outputs, row_args):
-    """The blocks as the steps of a ``lax.scan`` over the stacked rows ``[blocks, size, ...]``
-    (one static gather each), ``fn(rows)``; the results assembled from the stacked outputs."""
+    """The blocks as the steps of a ``lax.scan`` over the stacked rows ``[blocks, size, ...]``,
+    ``fn(rows)``; the results assembled from the stacked outputs.  Stacking is one concatenate
+    of the leading full blocks and the clamped last block, then a reshape (no gather: its index
+    array would be constant-folded at compile time, slowly), and the assembly the reverse."""
     nb = -(-n // block)
-    starts = np.minimum(np.arange(nb) * block, n - block)
-    take = starts[:, None] + np.arange(block)[None, :]
+    head = (nb - 1) * block
+
+    def stack(a):
+        return jnp.concatenate([a[:head], a[n - block:]]).reshape((nb, block) + a.shape[1:])
 
     def body(carry, blocks):
         return carry, tuple(r.astype(dtype) for r, (_, dtype) in zip(fn(blocks), outputs, strict=True))
 
-    _, ys = jax.lax.scan(body, None, tuple(a[take] for a in row_args))
-    head = (nb - 1) * block
+    _, ys = jax.lax.scan(body, None, tuple(stack(a) for a in row_args))
     return tuple(jnp.concatenate([y[:-1].reshape((head,) + y.shape[2:]), y[-1][head - (n - block):]])
                  for y in ys)
+
+
+def _closure_convert(fn, example):
+    """``(conv, consts)``: ``conv(blocks, *consts) == fn(blocks)`` with every tracer ``fn`` closes
+    over (of any dtype) as an explicit argument in ``consts``.
+
+    Unlike ``jax.closure_convert``, which keeps closed-over values that cannot carry a tangent
+    (integer and boolean arrays) inside the traced jaxpr, this hoists every tracer: a
+    ``custom_jvp`` rule can be traced after the trace that made them has ended (under
+    ``jax.checkpoint``), and a tracer left inside would then leak."""
+    cj = jax.make_jaxpr(fn)(example)
+    hoist = [isinstance(c, jax.core.Tracer) for c in cj.consts]
+    fixed = [c for c, h in zip(cj.consts, hoist, strict=True) if not h]
+
+    def conv(blocks, *cs):
+        it_fixed, it_cs = iter(fixed), iter(cs)
+        consts = [next(it_cs) if h else next(it_fixed) for h in hoist]
+        return tuple(jex.jaxpr_as_fun(jex.ClosedJaxpr(cj.jaxpr, consts))(*jax.tree.leaves(blocks)))
+
+    return conv, [c for c, h in zip(cj.consts, hoist, strict=True) if h]
 
 
 def row_blocks(fn, n: int, block: int, outputs, row_args=()):
@@ -246,8 +269,8 @@ def row_blocks(fn, n: int, block: int, outputs, row_args=()):
     rows (one static gather per array; scanned rows transpose to stacked cotangents and one
     scatter): the forward keeps the loop, which the stacking gathers and the assembly of the
     outputs would slow by a third, and reverse mode gets the scan (docs/performance.md,
-    "Gradients").  The block function is closure-converted (``jax.closure_convert``) so that the
-    whole arrays it closes over are explicit differentiable arguments.
+    "Gradients").  The block function is closure-converted (:func:`_closure_convert`) so that the
+    whole arrays it closes over are explicit arguments.
 
     In reverse mode each block is rematerialised (:func:`block_remat`, default on): the
     gradient of a right-hand side then costs about half of what storing the per-block
@@ -264,11 +287,12 @@ def row_blocks(fn, n: int, block: int, outputs, row_args=()):
                      zip(remat(functools.partial(call, size=n))(row_args), outputs, strict=True))
     if not _SCAN_BLOCKS:
         return _loop_blocks(remat(lambda s: call(_slices(row_args, s, block))), n, block, outputs)
-    conv, consts = jax.closure_convert(call, tuple(a[:block] for a in row_args))
+    conv, consts = _closure_convert(call, tuple(a[:block] for a in row_args))
 
-    @jax.custom_jvp
-    def blocked(args, cs):
+    def loop(args, cs):
         return _loop_blocks(lambda s: conv(_slices(args, s, block), *cs), n, block, outputs)
+
+    blocked = jax.custom_jvp(loop)
 
     @blocked.defjvp
     def _(primals, tangents):
