@@ -145,16 +145,18 @@ def test_block_scan_gradient_matches_finite_differences(small_blocks):
 
 def _toy_blocks(n: int = 23, k: int = 5, block: int = 7):
     """A blocked pass shaped like the flux sweep: float and integer row arguments, neighbour
-    gathers of whole arrays it closes over, a float and an integer output; 4 blocks of 7 rows for
-    23 rows (the last one clamped)."""
+    gathers of whole arrays it closes over (among them an integer one), a float and an integer
+    output; 4 blocks of 7 rows for 23 rows (the last one clamped)."""
     rng = np.random.default_rng(0)
     idx = jnp.asarray(rng.integers(0, n, (n, k)), jnp.int32)
 
-    def f(x, w):
+    def f(x, w, idx):
+        shift = jnp.roll(idx, 1, axis=0)              # an integer array the block closes over
+
         def blk(b, rows):
             xi, jb = rows(x), rows(idx)
-            r = jnp.sum(jnp.sin(x[jb] - xi[:, None, :]) * (w[jb] * w[jb])[..., None], axis=1) + xi ** 3
-            return r, jnp.sum(jb, axis=1)
+            r = jnp.sum(jnp.sin(x[jb] - xi[:, None, :]) * (w[jb] * w[shift[jb[:, 0]]])[..., None], axis=1)
+            return r + xi ** 3, jnp.sum(jb, axis=1)
 
         r, deg = apx.row_blocks(blk, n, block, [((n, 2), x.dtype), ((n,), jnp.int32)], (x, idx))
         return jnp.sum(jnp.cos(r) * jnp.arange(2 * n, dtype=r.dtype).reshape(n, 2)) + jnp.sum(deg), deg
@@ -166,24 +168,28 @@ def _toy_blocks(n: int = 23, k: int = 5, block: int = 7):
 
 def test_block_scan_of_a_toy_pass_equals_the_loop_in_forward_and_reverse_mode():
     """The scanned-block derivative of a blocked pass with closed-over gathers and integer rows
-    and outputs: values identical to the loop, reverse mode (grad) equal to the differentiated loop
-    to 1e-12, forward mode (jacfwd) equal to reverse mode, and both equal to central differences."""
+    and outputs: values identical to the loop, reverse mode (grad, also of a jax.checkpoint as in
+    the differentiated runs, whose derivative rules are traced after the forward trace has ended)
+    equal to the differentiated loop to 1e-12, forward mode (jacfwd) equal to reverse mode, and
+    both equal to central differences."""
     f, x, w, idx = _toy_blocks()
+    loss = lambda x, w, idx: f(x, w, idx)[0]  # noqa: E731
     res = {}
     for scan in (True, False):
         with apx.block_scan(scan):
-            val, deg = jax.jit(f)(x, w)
-            g = jax.jit(jax.grad(lambda x, w: f(x, w)[0], argnums=(0, 1)))(x, w)
-            jf = jax.jit(jax.jacfwd(lambda x, w: f(x, w)[0], argnums=(0, 1)))(x, w)
-        res[scan] = (val, g, jf)
+            val, deg = jax.jit(f)(x, w, idx)
+            g = jax.jit(jax.grad(loss, argnums=(0, 1)))(x, w, idx)
+            gc = jax.jit(jax.grad(jax.checkpoint(loss), argnums=(0, 1)))(x, w, idx)
+            jf = jax.jit(jax.jacfwd(loss, argnums=(0, 1)))(x, w, idx)
+        res[scan] = (val, g + gc, jf)
         np.testing.assert_array_equal(deg, np.sum(np.asarray(idx), axis=1))
     assert res[True][0] == res[False][0]
-    for a, b in zip(res[True][1] + res[True][2], res[False][1] * 2, strict=True):
+    for a, b in zip(res[True][1] + res[True][2], res[False][1] + res[False][1][:2], strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * float(np.max(np.abs(b))))
     rng = np.random.default_rng(1)
     vx, vw = rng.standard_normal(x.shape), rng.standard_normal(w.shape)
     eps = 1e-6
-    fd = (f(x + eps * vx, w + eps * vw)[0] - f(x - eps * vx, w - eps * vw)[0]) / (2 * eps)
+    fd = (loss(x + eps * vx, w + eps * vw, idx) - loss(x - eps * vx, w - eps * vw, idx)) / (2 * eps)
     ad = np.sum(res[True][1][0] * vx) + np.sum(res[True][1][1] * vw)
     assert abs(ad - fd) <= 1e-8 * abs(ad), (ad, fd)
 
