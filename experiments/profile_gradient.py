@@ -12,7 +12,12 @@ this process over ``--repeat`` calls (``time.process_time``: on a shared machine
 with the load than wall time; both are printed).  Prints the load average beside every row.
 
     python experiments/profile_gradient.py [--n 50] [--repeat 7] [--rounds 2] [--ab scan|remat]
-        [--pieces mid visc full]
+        [--pieces mid visc full] [--thunks TOP]
+
+``--thunks TOP`` (instead of the timings): a ``jax.profiler`` trace of one call of each piece's
+forward and vjp (defaults: rematerialisation and scanned blocks on), XLA thunk times summed by the
+source line of their root operation (``profile_step.thunk_table``), the TOP lines of each.
+
 """
 
 from __future__ import annotations
@@ -65,6 +70,32 @@ def best(fn, arg, repeat: int) -> tuple[float, float]:
     return wall, cpu
 
 
+def thunks_by_line(q, fns, top: int):
+    """Print the thunk times of each piece's forward and vjp summed by source line."""
+    import re
+    import tempfile
+    from collections import Counter
+
+    from profile_step import thunk_table
+
+    for name, f in fns.items():
+        y = f(q)
+        ct = jnp.cos(0.1 * jnp.arange(y.size, dtype=y.dtype)).reshape(y.shape)
+        for kind, prog in (("forward", jax.jit(f)), ("vjp", jax.jit(lambda q, f=f, ct=ct: jax.vjp(f, q)[1](ct)))):
+            with tempfile.TemporaryDirectory() as folder:
+                rows = thunk_table(prog.lower(q).compile(), (q,), 1, 10**6, folder)
+            ms, calls = Counter(), Counter()
+            for r in rows:
+                m = re.search(r"^(\S+) \(([^()]*:\d+)\)$", r["from"])
+                key = f"{m.group(2)} {m.group(1)}" if m else "(no source line)"
+                ms[key] += r["ms_per_step"]
+                calls[key] += r["calls"]
+            print(f"{name} {kind}: {sum(ms.values()):.1f} ms in {sum(calls.values())} thunk calls; "
+                  f"load {os.getloadavg()[0]:.1f}")
+            for key, v in ms.most_common(top):
+                print(f"  {v:8.2f} ms {calls[key]:6d} calls  {key}")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--n", type=int, default=50, help="particles per side")
@@ -72,9 +103,13 @@ def main():
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--ab", choices=("scan", "remat"), default="scan", help="which trace-time switch to compare")
     ap.add_argument("--pieces", nargs="+", choices=("mid", "visc", "full"), default=["mid", "visc", "full"])
+    ap.add_argument("--thunks", type=int, default=0, help="print the TOP source lines of a profile instead")
     args = ap.parse_args()
     q, fns = pieces(args.n)
     fns = {k: fns[k] for k in args.pieces}
+    if args.thunks:
+        thunks_by_line(q, fns, args.thunks)
+        return
     switch = {"scan": block_scan, "remat": block_remat}[args.ab]
     progs = {}
     for remat in (True, False):
