@@ -24,6 +24,10 @@ shared machine falls on both alike; the row then holds both timings and the CPU 
 second measure that contention distorts less), the peak RSS is that of the pair.  ``--dt``: the
 fixed step (``t_end = dt * steps``) for runs shorter than the default 1000 steps over t = 0.2.
 Every row records the load average (``os.getloadavg``) at its end.
+
+``--block-scan on|off|ab``: with (default) or without the scanned-block derivative of the stencil
+passes (:func:`mlsph_jax.approximation.block_scan`); ``ab`` as for ``--remat-blocks`` (not both
+``ab`` at once).
 """
 
 from __future__ import annotations
@@ -60,21 +64,27 @@ def _timed(fn, arg) -> tuple[float, float, object]:
 
 
 def child(n: int, steps: int, checkpoint: str, max_gb: float, plan_only: bool = False, remat: str = "on",
-          dt: float | None = None, repeat: int = 1) -> dict:
+          dt: float | None = None, repeat: int = 1, scan: str = "on") -> dict:
     import jax
 
     from mlsph_jax import config
+    from mlsph_jax.approximation import block_scan
     from mlsph_jax.cases import build_problem
     from mlsph_jax.differentiable import make_simulate, with_param
 
     t_end = 0.2 if dt is None else dt * steps
     cfg = config.load(ROOT / "configs/taylor_green_2d.toml", [f"case.n={n}", f"time.t_end={t_end!r}"])
     pb = build_problem(cfg)
-    variants = {"on": [True], "off": [False], "ab": [False, True]}[remat]
+    if remat == "ab" and scan == "ab":
+        raise SystemExit("--remat-blocks ab and --block-scan ab: compare one switch at a time")
+    opts = {"on": [True], "off": [False], "ab": [False, True]}
+    # variants (old first): (block remat, block scan)
+    variants = [(rb, sc) for rb in opts[remat] for sc in opts[scan]]
     mu = float(pb.params["physics.mu"])
-    out = {"n_particles": n * n, "steps": steps, "checkpoint": checkpoint, "t_end": t_end, "remat_blocks": remat}
+    out = {"n_particles": n * n, "steps": steps, "checkpoint": checkpoint, "t_end": t_end, "remat_blocks": remat,
+           "block_scan": scan}
     progs = {}
-    for rb in variants:
+    for rb, sc in variants:
         # record_every=1 (one scalar per step): nested checkpointing groups steps into segments that are
         # multiples of record_every, so recording only at the end would leave a single segment
         sim = make_simulate(pb, n_steps=steps, checkpoint=checkpoint, record_every=1, remat_blocks=rb)
@@ -82,15 +92,16 @@ def child(n: int, steps: int, checkpoint: str, max_gb: float, plan_only: bool = 
         def f(mu, sim=sim):
             return sim(with_param(pb.params, "physics.mu", mu), pb.particles).series["ke"][-1]
 
-        t0 = time.perf_counter()
-        c = jax.jit(f).lower(mu).compile()
-        out["forward_compile_s"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        cg = jax.jit(jax.grad(f)).lower(mu).compile()
-        out["reverse_compile_s"] = time.perf_counter() - t0
+        with block_scan(sc):   # a trace-time setting
+            t0 = time.perf_counter()
+            c = jax.jit(f).lower(mu).compile()
+            out["forward_compile_s"] = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            cg = jax.jit(jax.grad(f)).lower(mu).compile()
+            out["reverse_compile_s"] = time.perf_counter() - t0
         out["planned_forward_mb"] = _planned_mb(c)
         out["planned_reverse_mb"] = _planned_mb(cg)
-        progs[rb] = (c, cg)
+        progs[rb, sc] = (c, cg)
     if plan_only:  # XLA's memory plan of both programs, nothing executed (e.g. 10,000 steps)
         out["skipped"] = "--plan-only: compiled, not executed"
         return out
@@ -98,7 +109,7 @@ def child(n: int, steps: int, checkpoint: str, max_gb: float, plan_only: bool = 
         # executing would exhaust the machine; report XLA's plan instead of a measurement
         out["skipped"] = f"planned reverse-mode buffers {out['planned_reverse_mb'] / 1024:.1f} GB > --max-gb {max_gb}"
         return out
-    best = {rb: {} for rb in variants}
+    best = {v: {} for v in variants}
     for _ in range(repeat):
         for rb in variants:   # interleaved: A, B, A, B, ...
             c, cg = progs[rb]
@@ -111,9 +122,10 @@ def child(n: int, steps: int, checkpoint: str, max_gb: float, plan_only: bool = 
                 if rb == variants[0] and key == "forward":
                     out["peak_rss_forward_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     out.update(best[variants[-1]])
-    if remat == "ab":
-        out["old"] = best[False]
-        out["gradient_rel_diff"] = abs(best[True]["gradient"] - best[False]["gradient"]) / abs(best[False]["gradient"])
+    if len(variants) == 2:
+        old, new = best[variants[0]], best[variants[1]]
+        out["old"] = old
+        out["gradient_rel_diff"] = abs(new["gradient"] - old["gradient"]) / abs(old["gradient"])
     out["forward_p_upd_per_s"] = n * n * steps / out["forward_s"]
     out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     out["load_average"] = os.getloadavg()
@@ -133,6 +145,8 @@ def main():
                     help="compile forward and reverse programs and report XLA's memory plan without running them")
     ap.add_argument("--remat-blocks", choices=("on", "off", "ab"), default="on",
                     help="per-block rematerialisation of the stencil passes; ab: both, timed interleaved")
+    ap.add_argument("--block-scan", choices=("on", "off", "ab"), default="on",
+                    help="scanned-block derivative of the stencil passes; ab: both, timed interleaved")
     ap.add_argument("--dt", type=float, default=None, help="fixed step (t_end = dt * steps); default t_end = 0.2")
     ap.add_argument("--repeat", type=int, default=1,
                     help="timed repetitions (best of; interleaved with --remat-blocks ab)")
@@ -140,7 +154,7 @@ def main():
     args = ap.parse_args()
     if args.child:
         print(json.dumps(child(int(args.child[0]), int(args.child[1]), args.child[2], args.max_gb, args.plan_only,
-                               args.remat_blocks, args.dt, args.repeat)))
+                               args.remat_blocks, args.dt, args.repeat, args.block_scan)))
         return
     rows = []
     print(f"{'N':>7} {'steps':>6} {'checkpoint':<10} {'fwd s':>8} {'fwd p-upd/s':>11} {'rev s':>8} {'rev/fwd':>7} "
@@ -148,7 +162,8 @@ def main():
     for n in args.sizes:
         for ck in args.checkpoints:
             cmd = [sys.executable, __file__, "--max-gb", str(args.max_gb), "--remat-blocks", args.remat_blocks,
-                   "--repeat", str(args.repeat), "--child", str(n), str(args.steps), ck]
+                   "--block-scan", args.block_scan, "--repeat", str(args.repeat),
+                   "--child", str(n), str(args.steps), ck]
             if args.dt is not None:
                 cmd[2:2] = ["--dt", repr(args.dt)]
             if args.plan_only:
@@ -178,7 +193,8 @@ def main():
             cpu = f"cpu ratio {row['reverse_cpu_s'] / row['forward_cpu_s']:.2f}"
             if "old" in row:
                 o = row["old"]
-                cpu += (f"; without block remat: fwd {o['forward_s']:.1f} s rev {o['reverse_s']:.1f} s ratio "
+                which = "block remat" if args.remat_blocks == "ab" else "block scan"
+                cpu += (f"; without {which}: fwd {o['forward_s']:.1f} s rev {o['reverse_s']:.1f} s ratio "
                         f"{o['reverse_s'] / o['forward_s']:.2f} cpu ratio "
                         f"{o['reverse_cpu_s'] / o['forward_cpu_s']:.2f}; "
                         f"gradients differ by {row['gradient_rel_diff']:.1e}")

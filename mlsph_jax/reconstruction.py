@@ -28,7 +28,6 @@ import jax.numpy as jnp
 
 from . import approximation as apx
 from .approximation import mls
-from .approximation import rows as _rows
 from .eos import conservative_components, primitive_vector
 from .flux import local_mach, primitive_components
 from .registry import Registry
@@ -59,15 +58,15 @@ def fitted_midpoint_states(F, geom, degree: int, relative: bool, extra=None):
     nc = len(Ec)
     nf = nv + nc
 
-    def block(s, b):
-        jb = _rows(jsafe, s, b)
-        Cb = _cols(_rows(C, s, b), axis=1)
+    def block(b, rows):
+        jb = rows(jsafe)
+        Cb = _cols(rows(C), axis=1)
         Fj = [c[jb] for c in Fc + Ec]
         a = mls.stencil_sums([Cb[mm] * Fj[v] for mm in range(m) for v in range(nf)])
         ext = [a[mm * nf + v] for mm in range(m) for v in range(nv, nf)]
         a = [t[:, None] for t in a]                            # a_i = C_i F_S, [b, 1] each
-        dx = _rows(geom.dx, s, b)
-        hb = _rows(geom.h, s, b)[:, None]
+        dx = rows(geom.dx)
+        hb = rows(geom.h)[:, None]
         P = mls.monomial_planes([(0.5 * c) / hb for c in _cols(dx)], degree)
         own = []
         for v in range(nv):
@@ -75,14 +74,15 @@ def fitted_midpoint_states(F, geom, degree: int, relative: bool, extra=None):
             for mm in range(1, m):
                 o = o + P[mm] * a[mm * nf + v]
             if relative:
-                o = _rows(Fc[v], s, b)[:, None] + o - a[v]       # F_i + P_i(xi) - P_i(0)
+                o = rows(Fc[v])[:, None] + o - a[v]       # F_i + P_i(xi) - P_i(0)
             own.append(jnp.broadcast_to(o, jb.shape))
         if not nc:
             return (jnp.stack(own, axis=-1),)
         return jnp.stack(own, axis=-1), jnp.stack(ext, axis=-1).reshape(b, m, nc)
 
     outs = [((n, k, nv), F.dtype)] + ([((n, m, nc), F.dtype)] if nc else [])
-    res = apx.row_blocks(block, n, apx.block_rows(n, k), outs)
+    res = apx.row_blocks(block, n, apx.block_rows(n, k), outs,
+                         (jsafe, C, geom.dx, geom.h) + (tuple(Fc) if relative else ()))
     return res if nc else res[0]
 
 

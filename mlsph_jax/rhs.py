@@ -53,7 +53,6 @@ import jax.numpy as jnp
 from . import approximation as apx
 from . import fallback
 from .approximation import mls
-from .approximation import rows as _rows
 from .eos import get_eos, to_primitive
 from .flux import ale_flux_dot
 from .frames import frame_velocity, shifting_velocity
@@ -199,31 +198,31 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme, bo
             own = recon.midpoint_states(F, geom, degree)                            # i-side states, [N, K, nv]
         own_flat = own.reshape(n * k, own.shape[-1])
 
-    def block(s, b):
-        jb = _rows(jsafe, s, b)
-        Fi = [_rows(c, s, b)[:, None] for c in Fc]
+    def block(b, rows):
+        jb = rows(jsafe)
+        Fi = [rows(c)[:, None] for c in Fc]
         Fj = [c[jb] for c in Fc]
         if degree > 0:
-            flat = flat_reverse_index(jb, _rows(geom.rev, s, b), k)
-            ob = _cols(_rows(own, s, b))
+            flat = flat_reverse_index(jb, rows(geom.rev), k)
+            ob = _cols(rows(own))
             oj = _cols(own_flat[flat])                                       # own[j, rev]
-            high = jnp.minimum(_rows(ppd, s, b)[:, None], ppd[jb]) > 0
+            high = jnp.minimum(rows(ppd)[:, None], ppd[jb]) > 0
             Fm = [jnp.where(high, ob[v], Fi[v]) for v in range(nv)]
             Fp = [jnp.where(high, oj[v], Fj[v]) for v in range(nv)]
         else:
             Fm, Fp = [jnp.broadcast_to(f, jb.shape) for f in Fi], Fj
         Fm = variables.to_conservative(Fm, eos, params)
         Fp = variables.to_conservative(Fp, eos, params)
-        A = _cols(_rows(geom.A, s, b))
+        A = _cols(rows(geom.A))
         if eulerian:
             w_ij = None
         else:
-            wi = [_rows(c, s, b)[:, None] for c in wc]
+            wi = [rows(c)[:, None] for c in wc]
             wj = [c[jb] for c in wc]
             w_ij = [0.5 * (a + c) for a, c in zip(wi, wj, strict=True)]
         n_pair = None
         if normal.needs_pair_vector:
-            dx = _cols(_rows(geom.dx, s, b))
+            dx = _cols(rows(geom.dx))
             r2 = dx[0] * dx[0]
             for c in dx[1:]:
                 r2 = r2 + c * c
@@ -236,14 +235,14 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme, bo
             G1 = parachute.pair_flux(Fm, Fp, w_ij, A, n_pair, eos, params, scheme)
             GA = [jnp.where(high, g, g1) for g, g1 in zip(GA, G1, strict=True)]
         if fused:                                   # G - D_ij (D never order-reduced by MOOD)
-            ai = _cols(_rows(fit_flat, s, b)[:, None, :])
+            ai = _cols(rows(fit_flat)[:, None, :])
             ai = [[ai[mm * nc + c] for c in range(nc)] for mm in range(m_fit)]
             aj = _cols(fit_flat[jb])
             aj = [[aj[mm * nc + c] for c in range(nc)] for mm in range(m_fit)]
-            DA = pair_diffusive_flux(ai, aj, _cols(_rows(geom.dx, s, b)), _rows(geom.h, s, b)[:, None],
+            DA = pair_diffusive_flux(ai, aj, _cols(rows(geom.dx)), rows(geom.h)[:, None],
                                      geom.h[jb], A, degree, scheme, params)
             GA = [g - dd for g, dd in zip(GA, DA, strict=True)]
-        pm = _rows(geom.pair_mask, s, b)
+        pm = rows(geom.pair_mask)
         terms = [jnp.where(pm, g, 0.0) for g in GA] + A
         if not eulerian:
             dv = (w_ij[0] - wi[0]) * A[0]
@@ -253,7 +252,10 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme, bo
         return (jnp.stack(mls.stencil_sums(terms), axis=-1),)
 
     n_out = nv + d + (0 if eulerian else 1)
-    (sums,) = apx.row_blocks(block, n, apx.block_rows(n, k), [((n, n_out), U.dtype)])
+    row_args = (jsafe, geom.A, geom.pair_mask, *Fc) + ((geom.rev, own, ppd) if degree > 0 else ())
+    row_args += (() if eulerian else tuple(wc)) + ((geom.dx,) if normal.needs_pair_vector or fused else ())
+    row_args += (fit_flat, geom.h) if fused else ()
+    (sums,) = apx.row_blocks(block, n, apx.block_rows(n, k), [((n, n_out), U.dtype)], row_args)
     dq = -sums[:, :nv]
     if scheme.self_flux:
         dq = dq + ale_flux_dot(U, prim, w, sums[:, nv:nv + d], eos)

@@ -33,6 +33,7 @@ import dataclasses
 import functools
 
 import jax
+import jax.extend.core as jex
 import jax.numpy as jnp
 
 from ..errors import InputError
@@ -163,51 +164,157 @@ def block_remat(enabled: bool):
 
 
 def _remat_block(fn):
-    """``fn(start, size)`` under ``jax.checkpoint``: reverse mode keeps only the block's inputs
-    (slices of arrays that exist anyway) and recomputes its fused forward, in cache, just before
-    its transpose, instead of writing every [rows, K] temporary of every block to memory and
+    """``fn(*args)`` under ``jax.checkpoint``: reverse mode keeps only the block's inputs (its rows
+    of arrays that exist anyway, or the start row) and recomputes its fused forward, in cache, just
+    before its transpose, instead of writing every [rows, K] temporary of every block to memory and
     reading it back.  ``prevent_cse=False``: the block runs inside a loop (or once), where JAX's
     CSE concern does not arise, and the forward program stays the plain one."""
-
-    def run(start, size):
-        if isinstance(start, int):
-            return jax.checkpoint(lambda: fn(start, size), prevent_cse=False)()
-        return jax.checkpoint(lambda s: fn(s, size), prevent_cse=False)(start)
-
-    return run
+    return jax.checkpoint(fn, prevent_cse=False)
 
 
-def row_blocks(fn, n: int, block: int, outputs):
-    """Run ``fn(start, size) -> tuple of [size, ...] arrays`` over row blocks of ``n`` rows.
+#: Whether :func:`row_blocks` differentiates through scanned blocks (see there); switched by
+#: :func:`block_scan` at trace time.
+_SCAN_BLOCKS = True
 
-    ``outputs`` lists the ``(shape, dtype)`` of the assembled ``[n, ...]`` results.  The blocks
-    are visited by a ``fori_loop`` with a static trip count (reverse-mode differentiable); the
-    last block is clamped to end at row ``n`` and so recomputes, identically, a few rows of its
-    predecessor.  With ``block >= n`` this is a single call.
 
-    In reverse mode each block is rematerialised (:func:`block_remat`, default on): the
-    gradient of a right-hand side then costs about half of what storing the per-block
-    intermediates costs (docs/performance.md, "Gradients").
-    """
-    if _REMAT_BLOCKS:
-        fn = _remat_block(fn)
-    if block >= n:
-        return tuple(r.astype(dtype) for r, (_, dtype) in zip(fn(0, n), outputs, strict=True))
+@contextlib.contextmanager
+def block_scan(enabled: bool):
+    """Trace-time switch of how :func:`row_blocks` is differentiated (default on).
+
+    On: the forward program is the loop over ``dynamic_slice`` row blocks, derivatives (forward
+    and reverse mode) are those of the same blocks run as the steps of a ``lax.scan`` over stacked
+    rows.  Off: the loop itself is differentiated, whose pullback costs blocks x N (see
+    :func:`row_blocks`).  It never changes a value: the blocks are the same operations and the
+    gradients agree to round-off (tests/test_gradient_cost.py)."""
+    global _SCAN_BLOCKS
+    old, _SCAN_BLOCKS = _SCAN_BLOCKS, bool(enabled)
+    try:
+        yield
+    finally:
+        _SCAN_BLOCKS = old
+
+
+def _row_lookup(row_args, blocks):
+    """``rows(a)``: the block's rows of ``a``, which must be one of ``row_args`` (the same object)."""
+    lookup = {id(a): blk for a, blk in zip(row_args, blocks, strict=True)}
+
+    def rows(a):
+        try:
+            return lookup[id(a)]
+        except KeyError:
+            raise ValueError("row_blocks: rows() of an array not passed in row_args") from None
+
+    return rows
+
+
+def _slices(arrays, start, size):
+    return tuple(jax.lax.dynamic_slice_in_dim(a, start, size, 0) for a in arrays)
+
+
+def _loop_blocks(fn, n, block, outputs):
+    """The blocks as a ``fori_loop``, ``fn(start)`` reading its rows by ``dynamic_slice``, the
+    results written by ``dynamic_update_slice`` (the forward program)."""
     nb = -(-n // block)
 
     def body(b, outs):
         start = jnp.minimum(b * block, n - block)
-        res = fn(start, block)
         return tuple(jax.lax.dynamic_update_slice_in_dim(o, r.astype(o.dtype), start, 0)
-                     for o, r in zip(outs, res, strict=True))
+                     for o, r in zip(outs, fn(start), strict=True))
 
     init = tuple(jnp.zeros(shape, dtype) for shape, dtype in outputs)
     return jax.lax.fori_loop(0, nb, body, init)
 
 
-def rows(a, start, size):
-    """``a[start:start + size]`` along axis 0 with a traced start."""
-    return jax.lax.dynamic_slice_in_dim(a, start, size, 0)
+def _scan_blocks(fn, n, block, outputs, row_args):
+    """The blocks as the steps of a ``lax.scan`` over the stacked rows ``[blocks, size, ...]``,
+    ``fn(rows)``; the results assembled from the stacked outputs.  Stacking is one concatenate
+    of the leading full blocks and the clamped last block, then a reshape (no gather: its index
+    array would be constant-folded at compile time, slowly), and the assembly the reverse."""
+    nb = -(-n // block)
+    head = (nb - 1) * block
+
+    def stack(a):
+        return jnp.concatenate([a[:head], a[n - block:]]).reshape((nb, block) + a.shape[1:])
+
+    def body(carry, blocks):
+        return carry, tuple(r.astype(dtype) for r, (_, dtype) in zip(fn(blocks), outputs, strict=True))
+
+    _, ys = jax.lax.scan(body, None, tuple(stack(a) for a in row_args))
+    return tuple(jnp.concatenate([y[:-1].reshape((head,) + y.shape[2:]), y[-1][head - (n - block):]])
+                 for y in ys)
+
+
+def _closure_convert(fn, example):
+    """``(conv, consts)``: ``conv(blocks, *consts) == fn(blocks)`` with every tracer ``fn`` closes
+    over (of any dtype) as an explicit argument in ``consts``.
+
+    Unlike ``jax.closure_convert``, which keeps closed-over values that cannot carry a tangent
+    (integer and boolean arrays) inside the traced jaxpr, this hoists every tracer: a
+    ``custom_jvp`` rule can be traced after the trace that made them has ended (under
+    ``jax.checkpoint``), and a tracer left inside would then leak."""
+    cj = jax.make_jaxpr(fn)(example)
+    hoist = [isinstance(c, jax.core.Tracer) for c in cj.consts]
+    fixed = [c for c, h in zip(cj.consts, hoist, strict=True) if not h]
+
+    def conv(blocks, *cs):
+        it_fixed, it_cs = iter(fixed), iter(cs)
+        consts = [next(it_cs) if h else next(it_fixed) for h in hoist]
+        return tuple(jex.jaxpr_as_fun(jex.ClosedJaxpr(cj.jaxpr, consts))(*jax.tree.leaves(blocks)))
+
+    return conv, [c for c, h in zip(cj.consts, hoist, strict=True) if h]
+
+
+def row_blocks(fn, n: int, block: int, outputs, row_args=()):
+    """Run ``fn(size, rows) -> tuple of [size, ...] arrays`` over row blocks of ``n`` rows.
+
+    ``outputs`` lists the ``(shape, dtype)`` of the assembled ``[n, ...]`` results.
+    ``row_args`` are the ``[n, ...]`` arrays ``fn`` reads row-wise: inside ``fn``, ``rows(a)`` is
+    the block's rows of ``a`` (``a`` must be one of ``row_args``, the same object); anything else
+    ``fn`` reads whole (e.g. to gather neighbours) it closes over.  The last block is clamped to
+    end at row ``n`` and so recomputes, identically, a few rows of its predecessor.  With
+    ``block >= n`` this is a single call.
+
+    The forward program visits the blocks with a ``fori_loop`` that reads rows by
+    ``dynamic_slice``.  Differentiated as such, the cotangent of a sliced loop-invariant array is
+    a zero array of the whole shape plus an add per block, so a pullback costs blocks x N per
+    array (quadratic in N).  So (:func:`block_scan`, default on) the loop is a ``jax.custom_jvp``
+    whose derivative is that of the same blocks run as the steps of a ``lax.scan`` over stacked
+    rows (one static gather per array; scanned rows transpose to stacked cotangents and one
+    scatter): the forward keeps the loop, which the stacking gathers and the assembly of the
+    outputs would slow by a third, and reverse mode gets the scan (docs/performance.md,
+    "Gradients").  The block function is closure-converted (:func:`_closure_convert`) so that the
+    whole arrays it closes over are explicit arguments.
+
+    In reverse mode each block is rematerialised (:func:`block_remat`, default on): the
+    gradient of a right-hand side then costs about half of what storing the per-block
+    intermediates costs (docs/performance.md, "Gradients").
+    """
+    row_args = tuple(row_args)
+
+    def call(blocks, size=block):
+        return tuple(fn(size, _row_lookup(row_args, blocks)))
+
+    remat = _remat_block if _REMAT_BLOCKS else (lambda f: f)
+    if block >= n:
+        return tuple(r.astype(dtype) for r, (_, dtype) in
+                     zip(remat(functools.partial(call, size=n))(row_args), outputs, strict=True))
+    if not _SCAN_BLOCKS:
+        return _loop_blocks(remat(lambda s: call(_slices(row_args, s, block))), n, block, outputs)
+    conv, consts = _closure_convert(call, tuple(a[:block] for a in row_args))
+
+    def loop(args, cs):
+        return _loop_blocks(lambda s: conv(_slices(args, s, block), *cs), n, block, outputs)
+
+    blocked = jax.custom_jvp(loop)
+
+    @blocked.defjvp
+    def _(primals, tangents):
+        def scanned(args, cs):
+            return _scan_blocks(remat(lambda b: conv(b, *cs)), n, block, outputs, args)
+
+        return jax.jvp(scanned, primals, tangents)
+
+    return blocked(row_args, tuple(consts))
 
 
 @functools.partial(jax.jit, static_argnames=("spec",))
@@ -268,13 +375,14 @@ def _mls_operators(dx, h, vol, idx, mask, spec: ApproxSpec, coeffs_only: bool) -
     vol_j = None if spec.truncated_rcond is None else jnp.where(mask, vol[jnp.where(mask, idx, 0)], 0.0)
     small = m <= mls.UNROLL_MAX
 
-    def rc(s, b):
+    row_args = (dx, mask, h) + (() if vol_j is None else (vol_j,))
+
+    def rc(rows):
         if vol_j is None:
             return {}
         if small:   # the block's own kernel weights give the sums (no second kernel pass)
-            return {"vol_j": rows(vol_j, s, b), "thresholds": functools.partial(fill_thresholds, spec=spec)}
-        return {"rcond": pivot_thresholds(rows(dx, s, b), rows(vol_j, s, b), rows(mask, s, b),
-                                          rows(h, s, b), kern, spec)}
+            return {"vol_j": rows(vol_j), "thresholds": functools.partial(fill_thresholds, spec=spec)}
+        return {"rcond": pivot_thresholds(rows(dx), rows(vol_j), rows(mask), rows(h), kern, spec)}
     if small:
         # unrolled small bases, whole row blocks at once
         f = functools.partial(mls.operators_block, kernel=kern, degree=q, rcond=spec.rcond,
@@ -283,11 +391,11 @@ def _mls_operators(dx, h, vol, idx, mask, spec: ApproxSpec, coeffs_only: bool) -
         if coeffs_only and spec.with_coeffs:
             f = functools.partial(f, derivative="fixed_centre")
 
-            def cblk(s, b):
-                _, _, coeffs, deg = f(rows(dx, s, b), rows(mask, s, b), rows(h, s, b), **rc(s, b))
+            def cblk(b, rows):
+                _, _, coeffs, deg = f(rows(dx), rows(mask), rows(h), **rc(rows))
                 return deg, coeffs
 
-            deg, coeffs = row_blocks(cblk, n, block, [((n,), jnp.int32), ((n, m, k), dx.dtype)])
+            deg, coeffs = row_blocks(cblk, n, block, [((n,), jnp.int32), ((n, m, k), dx.dtype)], row_args)
             return ShapeOperators(None, None, coeffs, h, deg)
     else:
         # large bases (3D cubic, m = 20): per-particle solves, vmapped over row blocks so the
@@ -300,11 +408,11 @@ def _mls_operators(dx, h, vol, idx, mask, spec: ApproxSpec, coeffs_only: bool) -
     if spec.with_coeffs:
         outputs.append(((n, m, k), dx.dtype))
 
-    def blk(s, b):
-        values, grads, coeffs, deg = f(rows(dx, s, b), rows(mask, s, b), rows(h, s, b), **rc(s, b))
+    def blk(b, rows):
+        values, grads, coeffs, deg = f(rows(dx), rows(mask), rows(h), **rc(rows))
         return (values, grads, deg) + ((coeffs,) if spec.with_coeffs else ())
 
-    out = row_blocks(blk, n, block, outputs)
+    out = row_blocks(blk, n, block, outputs, row_args)
     return ShapeOperators(out[0], out[1], out[3] if spec.with_coeffs else None, h, out[2])
 
 
