@@ -105,7 +105,8 @@ def update_stats(stats, fractions):
 
 def _what(scheme) -> dict[str, str]:
     approx = scheme.approximation
-    rc = f"scheme.rcond = {scheme.rcond:g}, truncated stencils scheme.wall_rcond = {scheme.wall_fit_rcond:g}"
+    rc = (f"scheme.rcond = {scheme.rcond:g}; truncated stencils max(rcond, scheme.wall_rcond) = "
+          f"{scheme.wall_fit_rcond:g}")
     area = (f"corrected -> kernel gradient fallback (scheme.approximation = {approx!r})" if approx == "corrected"
             else f"MLS degree fallback of the area shape functions (scheme.approximation = {approx!r}, {rc})")
     return {"area_reduced": area,

@@ -342,10 +342,13 @@ def build_from_offsets(dx, h, vol, idx, mask, spec: ApproxSpec, *,
 
 #: A stencil whose kernel sum sum_j V_j W(x_j - x_i, h_i) is below this is *truncated* (a support
 #: cut by a boundary-integral wall or a free boundary; decision 77): its MLS fit uses
-#: ``ApproxSpec.truncated_rcond``.  Complete supports have 1 to a few per cent (lattices 1.003,
-#: the graded polar rings 0.998-1.003, mirror ghosts and frozen far-field particles complete the
-#: wall and outer rows, a lattice jittered by 0.3 dx: >= 0.84); a row half a spacing from a
-#: straight or curved wall 0.53-0.76 (experiments/one_sided_fits.py).
+#: ``ApproxSpec.truncated_rcond``.  Complete supports are within a few per cent of 1 (lattices
+#: 1.003, the graded polar rings 0.998-1.003; mirror ghosts and frozen far-field particles complete
+#: the wall and outer rows; the shipped moving runs >= 0.983); a row half a spacing from a straight
+#: or curved wall 0.53-0.76 (experiments/one_sided_fits.py).  Strongly disordered complete
+#: stencils can fall below the cut (a lattice jittered by 0.3 dx: down to 0.84-0.85 in a few per
+#: cent of the rows) and then take ``truncated_rcond`` too; so does a Lagrangian 1D end particle
+#: that leaves the frozen ends behind (riemann_r2_tammann: 0.66).
 TRUNCATED_FILL = 0.9
 
 

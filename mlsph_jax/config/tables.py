@@ -242,7 +242,8 @@ OUTPUT_KEYS: dict[str, Key] = {
     "degree_fallback_warn": Key(float, 0.01, minimum=0.0, maximum=1.0, note="1 = never warn",
                                 doc="warn (DegreeFallbackWarning; one line from mlsph run) when, in some step, a "
                                     "larger fraction of the fluid particles than this has a reduced approximation "
-                                    "degree: MLS degree fallback (pivot ratio < scheme.rcond) of the area shape "
+                                    "degree: MLS degree fallback (pivot ratio < scheme.rcond, scheme.wall_rcond in "
+                                    "truncated stencils) of the area shape "
                                     "functions or of the reconstruction/viscous fit, the corrected -> kernel "
                                     "gradient fallback, or exactly-zero fixed-centre derivatives at degree 0 "
                                     "(fractions in summary.json degree_fallback, per-particle degrees in fields.h5)"),
