@@ -20,8 +20,10 @@ targets <= 1.5).  ``--rounds R`` runs each size's frames R times, alternating (A
 the simulations compiled once), and keeps each frame's best stepping time: on a shared machine
 only such interleaved figures give a ratio that contention does not skew.
 ``--geometry-update step`` runs the moving frames with ``scheme.geometry_update = "step"`` (one
-geometry per step, opt-in); ``--set`` passes further config overrides to every run.  The load
-average is recorded beside each run.
+geometry per step); a frame written ``FRAME:stage`` or ``FRAME:step`` (e.g. ``--frames eulerian
+ale_shift:stage ale_shift:step``) sets it for that frame alone, so both settings alternate in
+one run; ``--set`` passes further config overrides to every run.  The load average is recorded
+beside each run.
 
 Prints a table and writes experiments/output/bench_taylor_green.json.
 """
@@ -86,6 +88,20 @@ def bench(n: int, frame: str, steps: int, method: str, cfl: float = 0.3, sets=()
             "load_average": [round(v, 2) for v in os.getloadavg()]}
 
 
+def frame_of(spec: str) -> str:
+    """The frame of a ``--frames`` entry ``FRAME`` or ``FRAME:UPDATE``."""
+    return spec.partition(":")[0]
+
+
+def spec_sets(spec: str, args) -> list[str]:
+    """Config overrides of a ``--frames`` entry: ``--set`` and, for a moving frame, its
+    ``scheme.geometry_update`` (``FRAME:UPDATE`` or ``--geometry-update``)."""
+    frame, _, update = spec.partition(":")
+    if frame == "eulerian":
+        return [*args.sets]
+    return [*args.sets, f"scheme.geometry_update={update or args.geometry_update}"]
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--steps", type=int, default=50)
@@ -99,19 +115,18 @@ def main(argv=None) -> int:
                     help="run each size's frames this many times, alternating, and keep each frame's best")
     args = ap.parse_args(argv)
     rows = []
-    print(f"{'n':>5} {'N':>7} {'frame':>10} {'steps':>6} {'compile s':>10} {'step s':>8} "
+    print(f"{'n':>5} {'N':>7} {'frame':>16} {'steps':>6} {'compile s':>10} {'step s':>8} "
           f"{'steps/s':>9} {'updates/s':>10} {'/ eulerian':>10} {'load':>5}", flush=True)
     for n in args.sizes:
         made = {}
-        for frame in args.frames:
-            sets = [*args.sets] + ([f"scheme.geometry_update={args.geometry_update}"] if frame != "eulerian" else [])
-            made[frame] = make(n, frame, args.steps, args.method, sets=sets)
+        for spec in args.frames:
+            made[spec] = make(n, frame_of(spec), args.steps, args.method, sets=spec_sets(spec, args))
         best = {}
         for _ in range(args.rounds):     # the frames alternate (A B C A B C ...): contention hits all alike
             for frame in args.frames:
-                r = bench(n, frame, args.steps, args.method, made=made[frame])
-                r["sets"] = [*args.sets] + ([f"scheme.geometry_update={args.geometry_update}"]
-                                            if frame != "eulerian" else [])
+                r = bench(n, frame_of(frame), args.steps, args.method, made=made[frame])
+                r["sets"] = spec_sets(frame, args)
+                r["frame_spec"] = frame
                 if frame not in best or r["stepping_s"] < best[frame]["stepping_s"]:
                     best[frame] = {**r, "rounds": args.rounds, "compile_s": best.get(frame, r)["compile_s"]}
         for frame in args.frames:
@@ -122,7 +137,7 @@ def main(argv=None) -> int:
                                      if eul is not None and frame != "eulerian" else None)
             rows.append(r)
             ratio = f"{r['cost_vs_eulerian']:>10.2f}" if r["cost_vs_eulerian"] is not None else f"{'':>10}"
-            print(f"{n:>5} {r['particles']:>7} {frame:>10} {r['steps']:>6} {r['compile_s']:>10.1f} "
+            print(f"{n:>5} {r['particles']:>7} {frame:>16} {r['steps']:>6} {r['compile_s']:>10.1f} "
                   f"{r['stepping_s']:>8.2f} {r['steps_per_s']:>9.2f} {r['particle_updates_per_s']:>10.3g} "
                   f"{ratio} {r['load_average'][0]:>5.2f}", flush=True)
     OUT.parent.mkdir(parents=True, exist_ok=True)

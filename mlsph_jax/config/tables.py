@@ -120,8 +120,8 @@ SCHEME_KEYS: dict[str, Key] = {
                            doc="moving frames: neighbour list and geometry (area vectors, fit) at every "
                                "Runge-Kutta stage (stage, default; exact SSP-RK3) or once per step at the "
                                "step's start positions, reused by its three stages (step: opt-in, about "
-                               "half the cost of a moving step, first-order-in-time geometry; measured "
-                               "accuracy in docs/performance.md); no effect in the eulerian frame"),
+                               "half the cost of a moving step, but SSP-RK3 is then first order in time: "
+                               "measured, docs/performance.md, decision 79); no effect in the eulerian frame"),
     "position_update": Key(str, "w_i", choices=names_of("scheme.position_update"),
                            doc="velocity that moves the particles in the lagrangian and ale_shift frames, "
                                "also used by their fluxes (eq. 4.36) and volumes (eq. 4.32): the "
