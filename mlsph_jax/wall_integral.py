@@ -308,6 +308,10 @@ class BoundaryIntegralWalls:
         xb = self.points(params).x
         return dataclasses.replace(self, fixed=(self.stencils(p, xb), *self.near_rows(p, xb)))
 
+    def point_stencils(self, p: Particles, xb):
+        """The stencils of the wall points ``xb``: the fixed ones if set."""
+        return self.fixed[0] if self.fixed is not None else self.stencils(p, xb)
+
     def _stencils_and_rows(self, p: Particles, xb):
         """``(stencils, rows, rows_overflow)`` at the wall points ``xb``: the fixed ones if set."""
         return self.fixed if self.fixed is not None else (self.stencils(p, xb), *self.near_rows(p, xb))
@@ -325,7 +329,7 @@ class BoundaryIntegralWalls:
         first-moment correction of the boundary integral, decision 54, then carry mass through
         the wall); drift along the wall is kept, and every other particle keeps its drift."""
         bp = self.points(params)
-        st = self.fixed[0] if self.fixed is not None else self.stencils(p, bp.x)
+        st = self.point_stencils(p, bp.x)
         kern = get_kernel(self.kernel)
         wgt = jnp.where(st.mask, kern.w_vec(st.dx, st.h[:, None]), 0.0) * bp.dgamma[:, None]   # [Nb, K]
         rows = wgt[..., None] * bp.normal[:, None, :]                                          # [Nb, K, d]
@@ -339,7 +343,7 @@ class BoundaryIntegralWalls:
     def wall_state(self, p: Particles, params, scheme, prim):
         """``(points, stencils, N_j(x_b)[Nb, K], p_b[Nb], tau_b n_b [Nb, d])`` for a state."""
         bp = self.points(params)
-        st = self.fixed[0] if self.fixed is not None else self.stencils(p, bp.x)
+        st = self.point_stencils(p, bp.x)
         kern = get_kernel(self.kernel)
         vals, _, _, _ = mls.operators_block(st.dx, st.mask, st.h, kernel=kern, degree=WALL_STATE_DEGREE,
                                             rcond=scheme.wall_fit_rcond, derivative="fixed_centre", with_coeffs=False)

@@ -279,9 +279,9 @@ def row_blocks(fn, n: int, block: int, outputs, row_args=()):
     a zero array of the whole shape plus an add per block, so a pullback costs blocks x N per
     array (quadratic in N).  So (:func:`block_scan`, default on) the loop is a ``jax.custom_jvp``
     whose derivative is that of the same blocks run as the steps of a ``lax.scan`` over stacked
-    rows (one static gather per array; scanned rows transpose to stacked cotangents and one
-    scatter): the forward keeps the loop, which the stacking gathers and the assembly of the
-    outputs would slow by a third, and reverse mode gets the scan (docs/performance.md,
+    rows (one concatenate and reshape per array, :func:`_scan_blocks`; scanned rows transpose to
+    stacked cotangents): the forward keeps the loop, which the stacking and the assembly of the
+    outputs would slow, and reverse mode gets the scan (docs/performance.md,
     "Gradients").  The block function is closure-converted (:func:`_closure_convert`) so that the
     whole arrays it closes over are explicit arguments.
 
