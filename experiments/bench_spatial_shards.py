@@ -13,7 +13,9 @@ re-executes itself with the flag):
 Each variant is compiled once; then ``--rounds`` rounds run the three in turn (one, index,
 spatial, one, ...) so that the contention of the shared machine falls on all of them, and the
 best round counts.  Every timing carries the 1-minute load average (``os.getloadavg``) read
-just before it.  Also: the compile time of each variant, the collective instructions of its
+just before it, and the cores the process kept busy during the run call (user + system CPU time
+over wall time, ``os.times``; set-up and snapshot included): one device that already keeps both
+cores of a 2-core host busy leaves a second device nothing to gain.  Also: the compile time of each variant, the collective instructions of its
 compiled chunk (``all-gather``, ``all-reduce``, ``collective-permute``, ``all-to-all``,
 ``reduce-scatter`` in the optimised HLO text; the step and stage loops are compiled once, so
 the count is per chunk, not per step; also for one chunk of the default ``taylor_green_2d``
@@ -78,11 +80,14 @@ def bench(n: int, steps: int, rounds: int, log) -> dict:
     for r in range(rounds):
         for name, _, _ in VARIANTS:
             la = load()
+            t0, c0 = time.perf_counter(), os.times()
             s = sims[name].run(None, snapshots=1, progress=False, plots=False).summary
+            t1, c1 = time.perf_counter(), os.times()
+            busy = (c1.user + c1.system - c0.user - c0.system) / max(t1 - t0, 1e-12)
             rate = N * s["n_steps"] / max(s["chunk_time_s"], 1e-12)
             rows[name]["timings"].append({"round": r, "load": la, "stepping_s": s["chunk_time_s"],
-                                          "particle_steps_per_s": rate})
-            log(f"N={N} round {r} {name:8s} {rate:10.3e} particle-steps/s (load {la})")
+                                          "particle_steps_per_s": rate, "cores_busy": busy})
+            log(f"N={N} round {r} {name:8s} {rate:10.3e} particle-steps/s, {busy:.2f} cores busy (load {la})")
     q1 = rows["one"]["q"]
     for row in rows.values():
         best = max(row["timings"], key=lambda t: t["particle_steps_per_s"])
