@@ -12,11 +12,12 @@ re-executes itself with the flag):
 
 Each variant is compiled once; then ``--rounds`` rounds run the three in turn (one, index,
 spatial, one, ...) so that the contention of the shared machine falls on all of them, and the
-best round counts.  Every timing carries the 1-minute load average (``os.getloadavg``) read
-just before it, and the cores the process kept busy during the run call (user + system CPU time
-over wall time, ``os.times``; set-up and snapshot included): one device that already keeps both
-cores of a 2-core host busy leaves a second device nothing to gain.  Also: the compile time of each variant, the collective instructions of its
-compiled chunk (``all-gather``, ``all-reduce``, ``collective-permute``, ``all-to-all``,
+best round counts. Every timing carries the 1-minute load average (``os.getloadavg``) read just
+before it, and the cores the process kept busy during the run call (user + system CPU time over
+wall time, ``os.times``; set-up and snapshot included): one device that already keeps both cores
+of a 2-core host busy leaves a second device nothing to gain. Also: the compile time of each
+variant, the collective instructions of its compiled chunk (``all-gather``, ``all-reduce``,
+``collective-permute``, ``all-to-all``,
 ``reduce-scatter`` in the optimised HLO text; the step and stage loops are compiled once, so
 the count is per chunk, not per step; also for one chunk of the default ``taylor_green_2d``
 config, adaptive step), the halo rows of the spatial layout, and the largest
