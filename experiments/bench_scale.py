@@ -8,7 +8,9 @@ count, compile time, memory per particle, and JAX-SPH side by side on the same v
   no exact solution).  A fixed step dt = 0.3 dx / (c0 + U0) and ``--steps`` steps in one jitted
   chunk; compile time (lowering + XLA compilation of the chunk) and stepping time (the compiled
   chunk's execution, ``summary["chunk_time_s"]``) are separate.
-  The cost exponent is the least-squares slope of log(seconds per step) against log N.
+  The cost exponent is the least-squares slope of log(seconds per step) against log N; with
+  ``--rounds R`` each size runs R times and the slope of log(CPU seconds per step) is reported
+  too (robust to the contention of a shared machine).
   Memory per particle is XLA's memory analysis of the compiled chunk (arguments + outputs +
   temporaries, per device) divided by N.
 * **Devices.**  For each N in ``--device-sizes`` a subprocess with
@@ -97,9 +99,15 @@ def _problem_3d(n: int, frame: str, steps: int):
 
 
 def run_case(dim: int, n: int, frame: str, steps: int, devices: int = 1, precision: str = "float64",
-             keep: bool = False) -> dict:
+             keep: bool = False, rounds: int = 1) -> dict:
     """One timed run (compile and stepping separate) of ``steps`` steps in one chunk (``keep``:
-    the final conserved quantities under ``"q"``, for comparisons)."""
+    the final conserved quantities under ``"q"``, for comparisons).
+
+    ``rounds`` > 1 runs the compiled case again ``rounds - 1`` times: the best chunk time counts,
+    and each repeat records the CPU seconds (user + system, ``os.times``) the process spent per
+    step and the cores it kept busy (CPU time over wall time).  Both include the run's set-up
+    (host neighbour build, Eulerian geometry, snapshot) but no compilation; CPU time per step is
+    the contention-robust measure of the cost scaling on a shared machine."""
     from mlsph_jax.simulation import Simulation
 
     pb, cfg, dt = (_problem_2d if dim == 2 else _problem_3d)(n, frame, steps)
@@ -110,6 +118,15 @@ def run_case(dim: int, n: int, frame: str, steps: int, devices: int = 1, precisi
     total = time.perf_counter() - t0
     s = res.summary
     stepping = s["chunk_time_s"]  # the compiled chunks alone (no compilation, no set-up)
+    repeats = []
+    for _ in range(rounds - 1):
+        w0, c0 = time.perf_counter(), os.times()
+        s2 = sim.run(None, snapshots=1, progress=False, plots=False).summary
+        w1, c1 = time.perf_counter(), os.times()
+        cpu = c1.user + c1.system - c0.user - c0.system
+        repeats.append({"stepping_s": s2["chunk_time_s"], "cpu_s_per_step": cpu / max(s2["n_steps"], 1),
+                        "cores_busy": cpu / max(w1 - w0, 1e-12), "load": os.getloadavg()[0]})
+        stepping = min(stepping, s2["chunk_time_s"])
     N = int(pb.particles.n)
     mem = s.get("chunk_memory_bytes") or {}
     return {"dim": dim, "n": n, "particles": N, "frame": frame, "devices": devices, "steps": s["n_steps"],
@@ -117,18 +134,20 @@ def run_case(dim: int, n: int, frame: str, steps: int, devices: int = 1, precisi
             "seconds_per_step": stepping / max(s["n_steps"], 1),
             "particle_steps_per_s": N * s["n_steps"] / max(stepping, 1e-12),
             "memory_bytes_per_particle": (sum(mem.values()) / N) if mem else None,
-            "status": s["status"], "precision": precision, "metrics": s["metrics"],
+            "status": s["status"], "precision": precision, "metrics": s["metrics"], "repeats": repeats,
+            "cpu_s_per_step": min((r["cpu_s_per_step"] for r in repeats), default=None),
             **({"q": res.particles.q} if keep else {})}
 
 
-def cost_exponent(rows: list[dict]) -> float | None:
-    """Least-squares slope of log(seconds per step) against log N (None for fewer than 2 sizes)."""
+def cost_exponent(rows: list[dict], key: str = "seconds_per_step") -> float | None:
+    """Least-squares slope of log(``key``: wall or CPU seconds per step) against log N (None for
+    fewer than 2 sizes or without the measure)."""
     import numpy as np
 
-    if len(rows) < 2:
+    if len(rows) < 2 or any(r.get(key) is None for r in rows):
         return None
     n = np.log([r["particles"] for r in rows])
-    t = np.log([r["seconds_per_step"] for r in rows])
+    t = np.log([r[key] for r in rows])
     return float(np.polyfit(n, t, 1)[0])
 
 
@@ -138,7 +157,10 @@ def _line(r: dict) -> str:
             f"steps={r['steps']:>4d} "
             f"compile={r['compile_s']:6.2f} s  step={r['seconds_per_step'] * 1e3:9.2f} ms  "
             f"{r['particle_steps_per_s']:10.3e} particle-steps/s  "
-            f"mem={'n/a' if mem is None else f'{mem:8.0f}'} B/particle")
+            f"mem={'n/a' if mem is None else f'{mem:8.0f}'} B/particle"
+            + ("" if r.get("cpu_s_per_step") is None else
+               f"  cpu={r['cpu_s_per_step'] * 1e3:9.2f} ms/step "
+               f"({max(x['cores_busy'] for x in r['repeats']):.2f} cores)"))
 
 
 # --------------------------------------------------------------------------------------------
@@ -221,6 +243,8 @@ def main(argv=None) -> int:
     ap.add_argument("--no-jaxsph", action="store_true")
     ap.add_argument("--jaxsph-rounds", type=int, default=3,
                     help="alternating rounds (JAX-SPH, ours) per size; the best round of each is compared")
+    ap.add_argument("--rounds", type=int, default=1,
+                    help="runs per size of the N sweep (repeats: best chunk time, CPU seconds per step)")
     ap.add_argument("--out", default=str(OUT / "bench_scale.json"))
     ap.add_argument("--worker-devices", type=int, default=0, help=argparse.SUPPRESS)
     ap.add_argument("--worker-n", type=int, default=0, help=argparse.SUPPRESS)
@@ -243,14 +267,19 @@ def main(argv=None) -> int:
            "steps": steps, "frame": a.frame}
     rows2, rows3 = [], []
     for n in sizes2d:
-        rows2.append(run_case(2, n, a.frame, steps))
+        rows2.append(run_case(2, n, a.frame, steps, rounds=a.rounds))
         log(_line(rows2[-1]))
     for n in sizes3d:
-        rows3.append(run_case(3, n, a.frame, steps))
+        rows3.append(run_case(3, n, a.frame, steps, rounds=a.rounds))
         log(_line(rows3[-1]))
     out["sweep_2d"], out["sweep_3d"] = rows2, rows3
     out["cost_exponent_2d"], out["cost_exponent_3d"] = cost_exponent(rows2), cost_exponent(rows3)
     log(f"cost exponent (seconds per step ~ N^a): 2D a = {out['cost_exponent_2d']}, 3D a = {out['cost_exponent_3d']}")
+    out["cpu_cost_exponent_2d"] = cost_exponent(rows2, "cpu_s_per_step")
+    out["cpu_cost_exponent_3d"] = cost_exponent(rows3, "cpu_s_per_step")
+    if a.rounds > 1:
+        log(f"cost exponent (CPU seconds per step ~ N^a): 2D a = {out['cpu_cost_exponent_2d']}, "
+            f"3D a = {out['cpu_cost_exponent_3d']}")
 
     out["precision"] = []
     for n in prec_sizes:
