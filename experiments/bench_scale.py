@@ -65,7 +65,7 @@ def _problem_2d(n: int, frame: str, steps: int):
 
     dt = CFL * (1.0 / n) / (10.0 + 1.0)
     cfg = config.loads(BASE, [f"case.n={n}", f"scheme.frame={frame}", f"time.t_end={steps * dt * (1 - 1e-9)!r}",
-                              f"time.dt={dt!r}"])
+                              f"time.dt={dt!r}", f"run.max_particles={max(2 * n * n, 200_000)}"])
     return build_problem(cfg), cfg, dt
 
 
