@@ -5,7 +5,7 @@ count, compile time, memory per particle, and JAX-SPH side by side on the same v
   MLS reconstruction, Eulerian frame by default) on n x n particles for n in ``--sizes2d``, and
   its 3D analogue on n^3 particles for n in ``--sizes3d`` (periodic unit cube, u = U0 (sin kx cos
   ky cos kz, -cos kx sin ky cos kz, 0), rho = rho0; the same scheme and EOS; a cost benchmark,
-  no exact solution).  A fixed step dt = 0.3 dx / (c0 + U0) and ``--steps`` steps in one jitted
+  no exact solution).  A fixed step dt = 0.3 dx / (c0 + U0) (or the viscous limit where it binds, n > 330) and ``--steps`` steps in one jitted
   chunk; compile time (lowering + XLA compilation of the chunk) and stepping time (the compiled
   chunk's execution, ``summary["chunk_time_s"]``) are separate.
   The cost exponent is the least-squares slope of log(seconds per step) against log N; with
@@ -57,13 +57,22 @@ VENV = OUT / ".venv_jaxsph"
 JAXSPH_DRIVER = ROOT / "experiments" / "jaxsph_taylor_green.py"
 
 CFL = 0.3
+MU = 0.01  # the Taylor-Green config's viscosity (Re = 100 on L = 1)
+
+
+def _fixed_dt(n: int) -> float:
+    """The fixed step: the acoustic CFL dt = 0.3 dx / (c0 + U0), and below the viscous limit
+    0.125 rho dx^2 / mu of :func:`mlsph_jax.integrate.particle_limits` (at 0.12: it binds from
+    n ~ 330 on, where the run would otherwise stop in step 1)."""
+    dx = 1.0 / n
+    return min(CFL * dx / (10.0 + 1.0), 0.12 * dx * dx / MU)
 
 
 def _problem_2d(n: int, frame: str, steps: int):
     from mlsph_jax import config
     from mlsph_jax.cases import build_problem
 
-    dt = CFL * (1.0 / n) / (10.0 + 1.0)
+    dt = _fixed_dt(n)
     cfg = config.loads(BASE, [f"case.n={n}", f"scheme.frame={frame}", f"time.t_end={steps * dt * (1 - 1e-9)!r}",
                               f"time.dt={dt!r}", f"run.max_particles={max(2 * n * n, 200_000)}"])
     return build_problem(cfg), cfg, dt
@@ -80,7 +89,7 @@ def _problem_3d(n: int, frame: str, steps: int):
     from mlsph_jax.simulation import Problem
     from mlsph_jax.state import Domain, make_particles
 
-    dt = CFL * (1.0 / n) / (10.0 + 1.0)
+    dt = _fixed_dt(n)
     cfg = config.loads(BASE, ["case.n=8", f"scheme.frame={frame}", f"time.t_end={steps * dt * (1 - 1e-9)!r}",
                               f"time.dt={dt!r}", "physics.mu=0.01"])
     scheme, params = scheme_from_config(cfg), params_from_config(cfg)
