@@ -9,7 +9,8 @@ e_k = |y(dt_k) - y(dt_k / 2)| ~ C dt_k^p, and log2(e_k / e_{k+1}) estimates the 
 (3 for SSP-RK3; a geometry lagged over the step costs O(dt) per stage).
 
     python experiments/geometry_update_order.py [--n 20] [--t-end 0.2] [--dt0 0.01] [--halvings 4]
-                                                [--frame ale_shift] [--set KEY=VALUE ...]
+                                                [--frame ale_shift] [--updates stage step]
+                                            [--set KEY=VALUE ...]
 
 Writes experiments/output/geometry_update_order.json.  Not a test.
 """
@@ -62,11 +63,13 @@ def main(argv=None) -> int:
     ap.add_argument("--dt0", type=float, default=0.01)
     ap.add_argument("--halvings", type=int, default=4)
     ap.add_argument("--frame", default="ale_shift")
+    ap.add_argument("--updates", nargs="+", default=["stage", "step"], choices=["stage", "step"],
+                    help="the scheme.geometry_update settings to refine (default: both)")
     ap.add_argument("--set", nargs="*", default=[], dest="sets", help="further config overrides KEY=VALUE")
     a = ap.parse_args(argv)
     dts = [a.dt0 / 2 ** k for k in range(a.halvings + 1)]
     rows = []
-    for update in ("stage", "step"):
+    for update in a.updates:
         runs = [final_state(a.n, a.frame, update, a.t_end, dt, a.sets) for dt in dts]
         ex = [float(np.max(np.abs(r1["x"] - r0["x"]))) for r0, r1 in itertools.pairwise(runs)]
         eu = [float(np.max(np.abs(r1["U"] - r0["U"]))) for r0, r1 in itertools.pairwise(runs)]

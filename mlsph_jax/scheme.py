@@ -76,7 +76,7 @@ class Scheme:
     self_flux:                keep the -F_i . sum_j A_ij term (thesis eq. 4.36)
     frame:                    ``eulerian`` | ``lagrangian`` | ``ale_shift`` (w = u + dw)
     shift_coefficient:        C of the shifting drift (:func:`mlsph_jax.rhs.shifting_velocity`)
-    shift_law:                ``xu`` (default) | ``fickian``: the drift law of ``ale_shift``
+    shift_law:                ``xu`` (default) | ``xu_smooth`` | ``fickian``: the drift law of ``ale_shift``
     position_update:          ``w_i`` (default: each particle moves with its own w) | ``mls`` (the
                               method's own interpolant of the frame velocity, eq. 4.28: MLS for
                               mlsph_ale, the Shepard average T(3.7) for sph_ale) | ``shepard``;

@@ -206,8 +206,8 @@ def _shift_drift(p, scheme, domain):
     return np.asarray(shifting_velocity(jnp.ones_like(p.x), geom, p.kind, scheme, p.vol))
 
 
-# one law per test in the default suite (CI time): fickian here, xu in the uniform-flow test
-@pytest.mark.parametrize("law", [pytest.param("xu", marks=pytest.mark.slow), "fickian"])
+# the default suite runs fickian and xu_smooth here, xu in the uniform-flow test (CI time)
+@pytest.mark.parametrize("law", [pytest.param("xu", marks=pytest.mark.slow), "fickian", "xu_smooth"])
 def test_shifting_drift_vanishes_on_a_lattice_and_restores_a_displaced_particle(law):
     """The shifting drift dw (rhs.shifting_velocity, architecture decision 24) is zero on a regular
     periodic lattice (by symmetry) and, for one particle pushed 0.3 dx off its lattice site,
@@ -224,8 +224,9 @@ def test_shifting_drift_vanishes_on_a_lattice_and_restores_a_displaced_particle(
     assert np.linalg.norm(dw[i]) > 0.1
 
 
-# one law per test in the default suite (CI time): xu here, fickian in the drift test
-@pytest.mark.parametrize("law", ["xu", pytest.param("fickian", marks=pytest.mark.slow)])
+# one law in the default suite (CI time): xu here, fickian and xu_smooth in the drift test
+@pytest.mark.parametrize("law", ["xu", pytest.param("fickian", marks=pytest.mark.slow),
+                                 pytest.param("xu_smooth", marks=pytest.mark.slow)])
 def test_uniform_flow_stays_uniform_on_shifted_disordered_particles(law):
     """A uniform viscous flow on a strongly jittered periodic cloud in the ale_shift frame: the
     particles move with w = u + dw (dw != 0 here, checked), and fluxes and volumes use the same w

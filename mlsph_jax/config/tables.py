@@ -108,7 +108,10 @@ SCHEME_KEYS: dict[str, Key] = {
                      "(w = u) or ale_shift (w = u + particle-shifting drift, docs/architecture.md decision 24)"),
     "shift_law": Key(str, "xu", choices=names_of("scheme.shift_law"),
                      doc="drift law of the ale_shift frame: xu (repulsion C U_max sum_j (r_i/r_ij)^2 "
-                         "e_ji / n_i, Xu et al. 2009 type) or fickian (-C U_max h_i sum_j V_j grad W_ij, smooth where "
+                         "e_ji / n_i, Xu et al. 2009 type; jumps where a neighbour crosses the support edge, "
+                         "which makes SSP-RK3 order ~1 in dt), xu_smooth (the same with the weights tapered by "
+                         "(1 - r_ij^2/R_i^2)^2: third order in dt, decision 80) or fickian (-C U_max h_i sum_j V_j "
+                         "grad W_ij, smooth where "
                          "neighbours cross the support edge)"),
     "shift_coefficient": Key(float, 0.02, minimum=0.0,
                              doc="coefficient C of the ale_shift drift (both laws of scheme.shift_law; "
