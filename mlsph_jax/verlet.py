@@ -95,15 +95,33 @@ def restrict(cand: nb.NeighborList, x, h, spec: nb.NeighborSpec) -> nb.NeighborL
     return nb.NeighborList(idx=idx, mask=idx < n, rev=rev, count=count, overflow_bits=bits)
 
 
+#: Columns per block of :func:`prefix_counts` (rows of up to twice this are one block).
+PREFIX_BLOCK = 64
+
+
 def prefix_counts(keep):
-    """``cumsum(keep, axis=1)`` (int32) as a parallel prefix sum (``lax.associative_scan``,
-    log2 K levels of shifted additions).  XLA:CPU lowers ``cumsum`` to a reduce-window of the
-    row's full length, O(K^2) per row (7 of the 30 ms a step of Taylor-Green 100 x 100 spent
-    restricting lists); a chain of K column additions, used before, was duplicated by fusion
-    into every output column: O(K^2) HLO instructions (88,000 at the blast's K = 257, 26 s of
-    compilation and 35 ms per call against 1.2 s and 7 ms now; docs/performance.md).
-    Integers: the same counts exactly."""
-    return jax.lax.associative_scan(jnp.add, keep.astype(jnp.int32), axis=1)
+    """``cumsum(keep, axis=1)`` (int32) as matrix products of 0/1 values: within blocks of
+    ``s`` columns, ``keep @ U`` with the upper-triangular ones ``U[s, s]``, plus the exclusive
+    prefix of the block totals (a second product); one block when K <= 2 :data:`PREFIX_BLOCK`.
+    Sums of at most K ones are exact in float32, so the counts are the integers of any order of
+    summation.  Why products: inside :func:`restrict` XLA:CPU fused the pair test into every
+    level of a ``lax.associative_scan`` (recomputing it log2 K times; 17 of 32 ms a call at
+    Taylor-Green 100 x 100, K = 75 candidates), ``cumsum`` is a reduce-window of the row's full
+    length and a chain of K column additions is duplicated into every output column, O(K^2)
+    instructions (docs/performance.md).  A dot materialises its operand once, and costs
+    K s multiply-adds per row."""
+    n, kv = keep.shape
+    s = kv if kv <= 2 * PREFIX_BLOCK else PREFIX_BLOCK
+    nb_ = -(-kv // s)
+    kf = keep.astype(jnp.float32)
+    if nb_ > 1:
+        kf = jnp.pad(kf, ((0, 0), (0, nb_ * s - kv)))
+    kf = kf.reshape(n, nb_, s)
+    inner = jnp.einsum("nbs,st->nbt", kf, jnp.triu(jnp.ones((s, s), jnp.float32)))
+    if nb_ > 1:     # + the counts of the earlier blocks
+        inner = inner + jnp.einsum("nb,bc->nc", inner[..., -1],
+                                   jnp.triu(jnp.ones((nb_, nb_), jnp.float32), 1))[..., None]
+    return inner.reshape(n, nb_ * s)[:, :kv].astype(jnp.int32)
 
 
 def build(x, h, spec: nb.NeighborSpec, cspec: nb.NeighborSpec, skin_fraction: float = VERLET_SKIN) -> VerletList:

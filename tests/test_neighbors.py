@@ -394,3 +394,15 @@ def test_verlet_restriction_reports_a_row_overflow():
     assert int(v.cand.overflow_bits) == 0
     nl, _ = jax.jit(verlet.refresh, static_argnums=(3, 4))(v, jnp.asarray(x), jnp.asarray(h), small, cspec)
     assert int(nl.overflow_bits) == nb.OVERFLOW_ROW == int(nb.update(x, h, small).overflow_bits)
+
+
+@pytest.mark.parametrize("width", [1, 5, 75, 128, 129, 200, 435])
+def test_verlet_prefix_counts_are_the_row_cumsum(width):
+    """The restriction's slot of each kept candidate: the row's running count of kept entries,
+    exactly, for one block (width <= 128) and for several blocks with their carried totals."""
+    from mlsph_jax import verlet
+
+    keep = np.random.default_rng(width).uniform(size=(37, width)) < 0.6
+    got = np.asarray(verlet.prefix_counts(jnp.asarray(keep)))
+    assert got.dtype == np.int32
+    np.testing.assert_array_equal(got, np.cumsum(keep, axis=1))
