@@ -139,6 +139,17 @@ class MirrorWalls:
         return p.replace(x=x, vol=vol, q=q)
 
 
+    def wall_tangential(self, n: int, d: int, dtype=jnp.float64):
+        """``[n, d]``: 1 where component k of particle i is tangential to the (single) wall it is a
+        ghost across, else 0 (fluid particles and corner ghosts); the pairs whose wall-tangential
+        velocity jump ``scheme.ghost_shear_dissipation = false`` removes (decision 81)."""
+        single = (jnp.sum(self.walls, axis=1) == 1)[:, None]
+        normal = jnp.zeros((self.walls.shape[0], d), dtype)
+        for k, ax in enumerate(self.axis):
+            normal = normal.at[:, ax].add(self.walls[:, k].astype(dtype))
+        tang = jnp.where(single, 1.0 - jnp.minimum(normal, 1.0), 0.0)
+        return jnp.zeros((n, d), dtype).at[self.ghost].set(tang)
+
     def ghost_frame_velocity(self, w):
         """``w`` with every ghost's frame velocity the mirror image of its parent's (the normal
         component across each mirrored wall reversed): a ghost's position is the mirror of its

@@ -201,17 +201,43 @@ class ThornberCorrection:
         half = 0.5 * (1.0 - jnp.minimum(1.0, local_mach(relm, relp, cm, cp)))
         dm = [-half * (velm[k] - velp[k]) for k in range(d)]      # u_L' - u_L
         dp = [-dm[k] for k in range(d)]                            # u_R' - u_R
+        return shift_velocity(Um, velm, dm, eos), shift_velocity(Up, velp, dp, eos)
 
-        def apply(U, vel, du):
-            out = [U[0]] + [U[1 + k] + U[0] * du[k] for k in range(d)]
-            if eos.has_energy:
-                ke = du[0] * (2.0 * vel[0] + du[0])
-                for k in range(1, d):
-                    ke = ke + du[k] * (2.0 * vel[k] + du[k])
-                out.append(U[-1] + 0.5 * U[0] * ke)
-            return out
 
-        return apply(Um, velm, dm), apply(Up, velp, dp)
+def shift_velocity(U, vel, du, eos):
+    """The state ``U`` (list of components) with its velocity ``vel`` changed by ``du`` at constant
+    density and internal energy: momentum rho (u + du), energy rho E + rho (|u + du|^2 - |u|^2)/2
+    (so the pressure is unchanged for any EOS)."""
+    d = len(du)
+    out = [U[0]] + [U[1 + k] + U[0] * du[k] for k in range(d)]
+    if eos.has_energy:
+        ke = du[0] * (2.0 * vel[0] + du[0])
+        for k in range(1, d):
+            ke = ke + du[k] * (2.0 * vel[k] + du[k])
+        out.append(U[-1] + 0.5 * U[0] * ke)
+    return out
+
+
+def without_wall_shear_jump(Um, Up, tangential, eos, params):
+    """Fluid-ghost pairs without the jump of the wall-tangential velocity (``scheme.ghost_shear_dissipation
+    = false``; docs/architecture.md decision 81): both states get the mean of the two tangential
+    velocities, at constant density and internal energy.
+
+    ``tangential``: list of d arrays, 1 where component k of the j-side particle is tangential to
+    the wall it is a mirror ghost of (0 for fluid particles and corner ghosts).  The exact Riemann
+    problem between a fluid state and its mirror image has zero normal velocity in the star region,
+    so an inviscid wall transmits no tangential momentum; the Rusanov flux' dissipation
+    -1/2 S (U^+ - U^-) instead pulls the fluid's reconstructed tangential velocity towards the
+    ghost's, a numerical wall friction proportional to the wave speed S and to the jump of the two
+    reconstructions at the wall (which the odd ghost extension u_G = 2 u_W - u_F makes O(h^2 u'')
+    where the wall velocity profile is curved).  Without it the wall's tangential force is the
+    viscous stress alone (thesis eq. 3.14 on the ghost fit)."""
+    d = len(tangential)
+    velm, _, _ = primitive_components(Um, eos, params)
+    velp, _, _ = primitive_components(Up, eos, params)
+    dm = [0.5 * tangential[k] * (velp[k] - velm[k]) for k in range(d)]
+    dp = [-dm[k] for k in range(d)]
+    return shift_velocity(Um, velm, dm, eos), shift_velocity(Up, velp, dp, eos)
 
 
 LOW_MACH_RECONSTRUCTIONS.register("none", NoLowMachCorrection())

@@ -57,7 +57,7 @@ from .eos import get_eos, to_primitive
 from .flux import ale_flux_dot
 from .frames import frame_velocity, shifting_velocity
 from .kernels import get_kernel
-from .reconstruction import reconstruct
+from .reconstruction import reconstruct, without_wall_shear_jump
 from .scheme import Scheme
 from .state import Domain, Kind, Params, Particles
 from .status import Status
@@ -181,6 +181,9 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme, bo
     parachute = scheme.parachute()                  # None: MOOD-demoted pairs use the scheme's flux
     low_mach = scheme.component("low_mach_reconstruction")
     normal = scheme.component("dissipation_normal")
+    wall_tangential = getattr(boundary, "wall_tangential", None)
+    tang = (None if scheme.ghost_shear_dissipation or wall_tangential is None
+            else _cols(wall_tangential(n, d, U.dtype)))       # decision 81
     F = variables.from_conservative(U, eos, params)
     nv = F.shape[1]
     degree = scheme.reconstruction_degree
@@ -229,6 +232,8 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme, bo
             pos = r2 > 0
             r = jnp.where(pos, jnp.sqrt(jnp.where(pos, r2, 1.0)), 0.0)
             n_pair = [c / jnp.where(r > 0, r, 1.0) for c in dx]
+        if tang is not None:                # no wall-tangential jump across the mirror walls
+            Fm, Fp = without_wall_shear_jump(Fm, Fp, [c[jb] for c in tang], eos, params)
         Fm, Fp = low_mach.correct(Fm, Fp, w_ij, eos, params, scheme)
         GA = flux.pair_flux(Fm, Fp, w_ij, A, n_pair, eos, params, scheme)
         if parachute is not None:                   # (needs MOOD, hence degree > 0 and `high`)

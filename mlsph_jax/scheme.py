@@ -74,6 +74,10 @@ class Scheme:
     area_correction:          ``none`` | ``linear`` | ``quadratic``: consistency correction of
                               the area vectors (:mod:`mlsph_jax.area_correction`, decision 59)
     self_flux:                keep the -F_i . sum_j A_ij term (thesis eq. 4.36)
+    ghost_shear_dissipation:  ``True`` (thesis: the flux of a fluid-ghost pair sees the whole
+                              velocity jump) | ``False``: the jump of the wall-tangential velocity of
+                              every fluid-ghost pair is removed before the flux, so a mirror wall's
+                              tangential force is the viscous stress alone (decision 81)
     frame:                    ``eulerian`` | ``lagrangian`` | ``ale_shift`` (w = u + dw)
     shift_coefficient:        C of the shifting drift (:func:`mlsph_jax.rhs.shifting_velocity`)
     shift_law:                ``xu`` (default) | ``xu_smooth`` | ``fickian``: the drift law of ``ale_shift``
@@ -114,6 +118,7 @@ class Scheme:
     dissipation_normal: str = "area"
     area_correction: str = "none"
     self_flux: bool = True
+    ghost_shear_dissipation: bool = True
     reference_mach: float = 0.0
     parachute_flux: str = "same"
     frame: str = "eulerian"

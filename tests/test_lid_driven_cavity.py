@@ -197,6 +197,75 @@ def test_ghia_deviations_are_signed_and_located():
     assert m["ghia_u_rms_dev"] == pytest.approx(np.sqrt(np.mean(du**2)), rel=1e-12)
 
 
+# --- the mirror walls' tangential force (decision 81) ------------------------------------------
+
+def test_wall_tangential_components_of_the_ghosts():
+    """Lid and bottom ghosts: x tangential; side-wall ghosts: y; corner ghosts and fluid: none."""
+    pb = build_problem(config.load(CFG, ["case.n=10"]))
+    p = pb.particles
+    t = np.asarray(pb.boundary.wall_tangential(p.n, 2))
+    x, kind = np.asarray(p.x), np.asarray(p.kind)
+    inx, iny = (x[:, 0] > 0) & (x[:, 0] < 1), (x[:, 1] > 0) & (x[:, 1] < 1)
+    fluid = kind == int(Kind.FLUID)
+    np.testing.assert_array_equal(t[fluid], 0.0)
+    np.testing.assert_array_equal(t[~fluid & inx & ~iny], np.tile([1.0, 0.0], ((~fluid & inx & ~iny).sum(), 1)))
+    np.testing.assert_array_equal(t[~fluid & iny & ~inx], np.tile([0.0, 1.0], ((~fluid & iny & ~inx).sum(), 1)))
+    np.testing.assert_array_equal(t[~fluid & ~inx & ~iny], 0.0)
+
+
+def _lid_layer_rates(flag: str, n: int = 16):
+    """Rates ``dq / V`` of the cavity (Re = 1000, ``scheme.ghost_shear_dissipation = flag``) in the
+    lid-layer state u = exp(-(1 - y)/delta), v = 0, rho = rho0 (delta = 1.5 dx, the Re = 1000 lid
+    layer at 50 x 50), ghosts regenerated: ``(x, fluid mask, inviscid rates (physics.mu = 0), full
+    rates, mu, dx, delta)``."""
+    import jax
+    import jax.numpy as jnp
+
+    from mlsph_jax import neighbors as nb
+    from mlsph_jax.rhs import geometry, rhs
+    from mlsph_jax.state import Params
+
+    pb = build_problem(config.load(CFG, [*QUIET, f"case.n={n}", "case.re=1000",
+                                         f"scheme.ghost_shear_dissipation={flag}"]))
+    p, sch, P = pb.particles, pb.scheme, pb.params
+    _, nl = nb.allocate(p.x, sch.beta * p.vol ** 0.5, pb.domain)
+    x = np.asarray(p.x)
+    dx = 1.0 / n
+    delta = 1.5 * dx
+    vel = np.stack([np.exp(-(1.0 - x[:, 1]) / delta), np.zeros(len(x))], 1)
+    p = pb.boundary.apply(_with_state(pb, np.ones(len(x)), vel, P), P)
+    f = jax.jit(lambda p, P: rhs(p, P, geometry(p.x, p.vol, nl, sch, pb.domain), sch, pb.boundary)[2] / p.vol[:, None])
+    inviscid = np.asarray(f(p, Params({**{k: P[k] for k in P}, "physics.mu": jnp.asarray(0.0)})))
+    return x, np.asarray(p.kind) == int(Kind.FLUID), inviscid, np.asarray(f(p, P)), float(P["physics.mu"]), dx, delta
+
+
+def test_mirror_walls_exert_no_inviscid_tangential_force():
+    """Decision 81.  A lid layer u = exp(-s/delta) (s = 1 - y, v = 0) has the exact rate
+    d(rho u)/dt = mu u'' and the lid's tangential force per unit length is the wall shear
+    mu/delta.  Through the inviscid fluxes alone (mu = 0) a mirror wall must transmit no
+    tangential momentum (the star region of the Riemann problem between a fluid state and its
+    mirror image has zero normal velocity).  Summed over the central columns (x-independent state:
+    the fluxes through the columns' sides cancel, so the sum is what the lid gives) the fluxes with
+    ``scheme.ghost_shear_dissipation = false`` give < 1e-3 of the wall shear.  With the thesis'
+    Rusanov dissipation on the whole jump (``true``, the default, and the only behaviour before
+    decision 81) the same sum exceeds the physical wall shear (1.8 x at 50 x 50,
+    docs/validation.md): the spurious wall friction that drives the Re = 1000 primary vortex too
+    strong.  The viscous part, the mass and the normal-momentum rates do not depend on the option."""
+    out = {}
+    for flag in ("false", "true"):
+        x, fluid, inv, full, mu, dx, delta = _lid_layer_rates(flag)
+        col = fluid & (np.abs(x[:, 0] - 0.5) < 0.2)
+        ncol = np.unique(np.round(x[col, 0], 10)).size
+        per_length = dx / ncol                                  # sum of rates x dx^2 / (ncol dx)
+        out[flag] = (inv[col, 1].sum() * per_length, (full - inv)[col, 1].sum() * per_length, full[col])
+    shear = mu / delta
+    assert abs(out["false"][0]) < 1e-3 * shear, (out["false"][0], shear)
+    assert out["true"][0] > 1.0 * shear, (out["true"][0], shear)
+    assert out["false"][1] == pytest.approx(out["true"][1], rel=1e-9)
+    assert 0.5 * shear < out["false"][1] < 1.2 * shear, (out["false"][1], shear)
+    np.testing.assert_allclose(out["false"][2][:, [0, 2]], out["true"][2][:, [0, 2]], rtol=0, atol=1e-10)
+
+
 # --- boundary-integral walls (thesis eq. 4.24; docs/architecture.md decisions 54, 60, 61) ---------
 
 BI = ("case.walls=boundary_integral", "case.n=10")

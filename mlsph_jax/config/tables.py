@@ -103,6 +103,13 @@ SCHEME_KEYS: dict[str, Key] = {
     "self_flux": Key(bool, True,
                      doc="include the self-flux term -F_i.sum_j A_ij (thesis default; keeps "
                          "uniform states exact, conserves only up to a quadrature defect)"),
+    "ghost_shear_dissipation": Key(bool, True,
+                                   doc="mirror-ghost walls: the numerical flux of a fluid-ghost pair "
+                                       "dissipates the jump of the wall-tangential velocity too (true, "
+                                       "thesis), or that jump is removed before the flux (false: no "
+                                       "inviscid wall friction, the wall's tangential force is the viscous "
+                                       "stress alone; docs/architecture.md decision 81); no effect without "
+                                       "mirror ghosts"),
     "frame": Key(str, "eulerian", choices=names_of("scheme.frame"),
                  doc="ALE frame velocity: eulerian (w = 0, particles fixed), lagrangian "
                      "(w = u) or ale_shift (w = u + particle-shifting drift, docs/architecture.md decision 24)"),
