@@ -5,9 +5,10 @@ count, compile time, memory per particle, and JAX-SPH side by side on the same v
   MLS reconstruction, Eulerian frame by default) on n x n particles for n in ``--sizes2d``, and
   its 3D analogue on n^3 particles for n in ``--sizes3d`` (periodic unit cube, u = U0 (sin kx cos
   ky cos kz, -cos kx sin ky cos kz, 0), rho = rho0; the same scheme and EOS; a cost benchmark,
-  no exact solution).  A fixed step dt = 0.3 dx / (c0 + U0) (or the viscous limit where it binds, n > 330) and ``--steps`` steps in one jitted
-  chunk; compile time (lowering + XLA compilation of the chunk) and stepping time (the compiled
-  chunk's execution, ``summary["chunk_time_s"]``) are separate.
+  no exact solution).  A fixed step dt = 0.3 dx / (c0 + U0) (or the viscous limit where it
+  binds, n > 330) and ``--steps`` steps in one jitted chunk; compile time (lowering + XLA
+  compilation of the chunk) and stepping time (the compiled chunk's execution,
+  ``summary["chunk_time_s"]``) are separate.
   The cost exponent is the least-squares slope of log(seconds per step) against log N; with
   ``--rounds R`` each size runs R times and the slope of log(CPU seconds per step) is reported
   too (robust to the contention of a shared machine).

@@ -148,14 +148,16 @@ class FickianShift:
 
 @dataclasses.dataclass(frozen=True)
 class SmoothXuShift:
-    """The Xu et al. (2009) repulsion of :class:`XuShift` with every neighbour weighted by the taper
-    f_ij = (1 - r_ij^2 / R_i^2)^2 (R_i = support * h_i): drift_i = 1/n_i sum_j f_ij (r_i / r_ij)^2
-    (x_i - x_j) / r_ij with n_i = sum_j f_ij and r_i = sum_j f_ij r_ij / n_i.  f and its slope vanish
-    at the support edge, so the drift, and with it the right-hand side, is C^1 in the positions
-    where a neighbour crosses the edge: SSP-RK3 keeps its third order in time (the plain ``xu``
-    drift jumps there, which makes it order ~1; docs/moving_particles.md §7, decision 80).  Its
-    drift is ~1.5x the ``xu`` one at the same C on a jittered lattice.  Opt-in: on the §4.5.1
-    vortex at t = 2 its E_k and velocity errors are ~1.5x those of ``xu`` (decision 80)."""
+    """The Xu et al. (2009) repulsion of :class:`XuShift` with every neighbour weighted by the
+    taper f_ij = (1 - r_ij^2 / R_i^2)^2 (R_i = support * h_i): drift_i = 1/n_i sum_j f_ij (r_i /
+    r_ij)^2 (x_i - x_j) / r_ij with n_i = sum_j f_ij and r_i = sum_j f_ij r_ij / n_i. f and its
+    slope vanish at the support edge, so the drift, and with it the right-hand side, is C^1 in
+    the positions where a neighbour crosses the edge, as long as another neighbour stays inside
+    (n_i > 0; a particle losing its last neighbour drops its drift to zero, as with ``xu``):
+    SSP-RK3 keeps its third order in time (the plain ``xu`` drift jumps there, which makes it
+    order ~1; docs/moving_particles.md §7, decision 80). Its drift is ~1.5x the ``xu`` one at
+    the same C on a jittered lattice. Opt-in: on the §4.5.1 vortex at t = 2 its E_k and velocity
+    errors are ~1.5x those of ``xu`` (decision 80)."""
 
     def drift(self, geom, scheme, vol):
         r2, pos = _inside_support(geom, scheme)

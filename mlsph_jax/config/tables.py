@@ -121,7 +121,7 @@ SCHEME_KEYS: dict[str, Key] = {
                          "grad W_ij, smooth where "
                          "neighbours cross the support edge)"),
     "shift_coefficient": Key(float, 0.02, minimum=0.0,
-                             doc="coefficient C of the ale_shift drift (both laws of scheme.shift_law; "
+                             doc="coefficient C of the ale_shift drift (every law of scheme.shift_law; "
                                  "mlsph_jax.rhs.shifting_velocity)"),
     "stress": Key(str, "stokes", choices=names_of("scheme.stress"),
                   doc="viscous stress: stokes (mu (grad u + grad u^T - 2/3 div u I)) or "
