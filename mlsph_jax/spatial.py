@@ -80,7 +80,8 @@ def morton_order(x: np.ndarray, bits: int | None = None) -> np.ndarray:
 
 def check_spatial(scheme, boundary, *, local_time_stepping: bool = False):
     """Refuse (``InputError`` naming the key and value) what the spatial decomposition does not
-    support: moving frames, MOOD, walls other than mirror ghosts, local time stepping."""
+    support: moving frames, MOOD, walls other than mirror ghosts, mirror ghosts without their
+    inviscid shear dissipation (``scheme.ghost_shear_dissipation = false``), local time stepping."""
     from .boundaries import MirrorWalls
     from .far_field import CharacteristicFarField, WithFarField
 
@@ -104,6 +105,10 @@ def check_spatial(scheme, boundary, *, local_time_stepping: bool = False):
                 else f"walls of type {type(boundary).__name__}")
         raise InputError(f"invalid {what} with run.decomposition=\"spatial\": {ok}no walls or "
                          "case.walls=\"mirror_ghosts\" (or run.decomposition=\"index\")")
+    if not scheme.ghost_shear_dissipation:
+        raise InputError("invalid scheme.ghost_shear_dissipation=false with run.decomposition=\"spatial\": the "
+                         "shards' halo boundary does not carry the mirror ghosts' wall-tangential mask (decision "
+                         f"81); {ok}scheme.ghost_shear_dissipation=true (or run.decomposition=\"index\")")
     if local_time_stepping:
         raise InputError("invalid time.local_time_stepping=true with run.decomposition=\"spatial\"; "
                          f"{ok}time.local_time_stepping=false (or run.decomposition=\"index\")")

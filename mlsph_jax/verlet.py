@@ -111,16 +111,19 @@ def prefix_counts(keep):
     instructions (docs/performance.md).  A dot materialises its operand once, and costs
     K s multiply-adds per row."""
     n, kv = keep.shape
+    if kv == 0:
+        return jnp.zeros((n, 0), jnp.int32)
     s = kv if kv <= 2 * PREFIX_BLOCK else PREFIX_BLOCK
     nb_ = -(-kv // s)
     kf = keep.astype(jnp.float32)
     if nb_ > 1:
         kf = jnp.pad(kf, ((0, 0), (0, nb_ * s - kv)))
     kf = kf.reshape(n, nb_, s)
-    inner = jnp.einsum("nbs,st->nbt", kf, jnp.triu(jnp.ones((s, s), jnp.float32)))
+    exact = jax.lax.Precision.HIGHEST   # full float32 products on GPUs/TPUs too (no TF32/bf16 passes)
+    inner = jnp.einsum("nbs,st->nbt", kf, jnp.triu(jnp.ones((s, s), jnp.float32)), precision=exact)
     if nb_ > 1:     # + the counts of the earlier blocks
         inner = inner + jnp.einsum("nb,bc->nc", inner[..., -1],
-                                   jnp.triu(jnp.ones((nb_, nb_), jnp.float32), 1))[..., None]
+                                   jnp.triu(jnp.ones((nb_, nb_), jnp.float32), 1), precision=exact)[..., None]
     return inner.reshape(n, nb_ * s)[:, :kv].astype(jnp.int32)
 
 

@@ -361,6 +361,8 @@ def test_spatial_decomposition_refuses_what_it_does_not_support():
         (base, ["scheme.frame=ale_shift"], r'scheme\.frame=.ale_shift. with run\.decomposition="spatial".*allowed'),
         (base, ["scheme.limiter=mood"], r'scheme\.limiter=.mood. with run\.decomposition="spatial".*allowed'),
         (base, ["time.local_time_stepping=true"], r"time\.local_time_stepping=true with run\.decomposition"),
+        ('[case]\nname = "lid_driven_cavity"\nn = 8\n', ["scheme.ghost_shear_dissipation=false"],
+         r'scheme\.ghost_shear_dissipation=false with run\.decomposition="spatial".*allowed'),
         ('[case]\nname = "lid_driven_cavity"\nn = 8\n', ["case.walls=boundary_integral"],
          r'invalid boundary-integral walls \(case\.walls="boundary_integral".* with run\.decomposition="spatial".*'
          r'case\.walls="mirror_ghosts"'),
