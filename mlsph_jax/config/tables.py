@@ -108,8 +108,9 @@ SCHEME_KEYS: dict[str, Key] = {
                                        "dissipates the jump of the wall-tangential velocity too (true, "
                                        "thesis), or that jump is removed before the flux (false: no "
                                        "inviscid wall friction, the wall's tangential force is the viscous "
-                                       "stress alone; docs/architecture.md decision 81); no effect without "
-                                       "mirror ghosts"),
+                                       "stress alone; single-wall ghosts of no-slip and slip walls alike, corner "
+                                       "ghosts untouched; docs/architecture.md decision 81); no effect without "
+                                       "mirror ghosts; refused with run.decomposition = \"spatial\""),
     "frame": Key(str, "eulerian", choices=names_of("scheme.frame"),
                  doc="ALE frame velocity: eulerian (w = 0, particles fixed), lagrangian "
                      "(w = u) or ale_shift (w = u + particle-shifting drift, docs/architecture.md decision 24)"),
