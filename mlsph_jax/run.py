@@ -53,8 +53,12 @@ def moving_cell_size(h: np.ndarray, scheme, dim: int) -> float | None:
 
 
 def moving_min_headroom(dim: int) -> float:
-    """Smallest capacity headroom the driver uses for moving particles (compression)."""
-    return 2.0 if dim == 1 else 1.6
+    """Smallest capacity headroom the driver uses for moving particles: 2.0 in 1D (a shock
+    tube's Lagrangian particles compress by large factors), else 1.3, the Eulerian
+    ``scheme.neighbor_headroom`` default (decision 84: every padding slot costs every pass over
+    the stencil of every stage; a compressing 2D/3D flow regrows, i.e. stops the chunk, grows the
+    capacity from the counts it measured and recompiles, never drops a neighbour)."""
+    return 2.0 if dim == 1 else 1.3
 
 
 def plan_neighbors(particles: Particles, scheme, domain: Domain, *, headroom: float,

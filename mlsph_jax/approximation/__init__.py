@@ -39,7 +39,7 @@ import jax.numpy as jnp
 from ..errors import InputError
 from ..kernels import get_kernel
 from ..registry import Registry
-from ..state import minimum_image, tiny
+from ..state import tiny
 from . import basis, mls
 
 APPROXIMATIONS: Registry = Registry("scheme.approximation", protocol=("build", "basis_degree", "has_coeffs"),
@@ -122,11 +122,22 @@ def smoothing_length(vol, beta: float, dim: int):
 
 
 def pair_offsets(x, idx, mask, box_length=None, periodic=None):
-    """dx[i, k] = x_j - x_i (minimum image), zero on padding slots."""
-    n = x.shape[0]
+    """dx[i, k] = x_j - x_i (minimum image), zero on padding slots.
+
+    Component by component (the operations of :func:`minimum_image`, bitwise the same): the
+    whole-vector form made XLA:CPU materialise the broadcast ``x[:, None, :]`` as an [N, K, d]
+    array, a pass over the stencil of its own in every moving stage (docs/performance.md)."""
+    n, d = x.shape
     j = jnp.where(mask, idx, jnp.arange(n)[:, None])
-    dx = minimum_image(x[j] - x[:, None, :], box_length, periodic)
-    return jnp.where(mask[..., None], dx, 0.0)
+    cols = []
+    for a in range(d):
+        xa = x[:, a]
+        da = xa[j] - xa[:, None]
+        if box_length is not None and periodic is not None:
+            L = jnp.asarray(box_length, x.dtype)[a]
+            da = jnp.where(jnp.asarray(periodic)[a], da - L * jnp.round(da / L), da)
+        cols.append(jnp.where(mask, da, 0.0))
+    return jnp.stack(cols, axis=-1)
 
 
 #: Target number of stencil slots (rows x K) per block of the batched passes: the per-block

@@ -178,10 +178,11 @@ SCHEME_KEYS: dict[str, Key] = {
                                  "neighbour count"),
     "moving_neighbor_headroom": Key(float, 0.0, minimum=0.0,
                                     doc="moving frames, chunked driver: the smallest neighbour-list headroom "
-                                        "(max of this and neighbor_headroom); 0 = automatic (2.0 in 1D, 1.6 "
-                                        "otherwise: room for compression, since a regrowth recompiles). A lower "
-                                        "value (>= 1) pads fewer slots, each of which every pass over the "
-                                        "stencil pays for (docs/performance.md); same numbers to round-off"),
+                                        "(max of this and neighbor_headroom); 0 = automatic (2.0 in 1D, 1.3 "
+                                        "otherwise, decision 84: an overflow regrows the capacity and recompiles, "
+                                        "never drops a neighbour). A higher value (e.g. 1.6) leaves a compressing "
+                                        "flow room before it regrows; every padding slot costs every pass over "
+                                        "the stencil (docs/performance.md); same numbers"),
 }
 
 
