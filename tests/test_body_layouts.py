@@ -230,3 +230,72 @@ def test_coarse_re40_drag_in_band_on_the_lattice_layouts(layout, extra):
     assert 0.97 * RE40_TARGETS["cd"][0] < cd < CD_RE20, m
     assert abs(m["cl"]) < 0.01 * cd
     assert 0.6 < m["cd_pressure"] / cd < 0.8, m
+
+
+# --- the wake-refined polar layout (decision 86) -------------------------------------------------
+
+WAKE = ("case.layout=\"wake\"", "case.r_far=4.0", "case.lattice_ratio=1.5", "case.wake_length=2.5",
+        "case.wake_width=0.6")
+
+
+def test_wake_layout_refines_the_strip_and_its_volumes_partition_the_fluid():
+    """The strip behind the body holds the square lattice of spacing h (no ring particle left in
+    it; the particles on the axis between its start and end have sqrt(V) = h, up to 1.5 h in the
+    end cells next to the rings, where the polar rings grow to more than 2 h), no particle is
+    closer than GAP h to another there, and the
+    Voronoi volumes of the fluid particles sum to the area inside the polygon of the bisectors
+    between the last fluid ring and the first frozen ring (apothem a: n a^2 tan(pi / n)) less the
+    body polygon, to round-off (the frozen rings keep their sector areas)."""
+    from mlsph_jax.cases.body_layouts import wake_start
+    from mlsph_jax.cases.layouts import polar_ring_edges
+    cfg = _cfg("wake", WAKE[1:])
+    lay, P = _layout(cfg)
+    c = cfg["case"]
+    fluid = lay.kind == int(Kind.FLUID)
+    x, vol = lay.x[fluid], lay.vol[fluid]
+    edges, q = polar_ring_edges(c["radius"], c["n_theta"], c["r_far"])
+    a = 0.25 * (edges[-2] + 2.0 * edges[-1] + edges[-1] * q)
+    n = c["n_theta"]
+    area = n * a * a * math.tan(math.pi / n) - polygon_area(body_polygon(body_curve(cfg), P))
+    assert abs(vol.sum() - area) <= 1e-12 * area
+    assert vol.min() > 0.0 and np.all(lay.vol[~fluid] > 0.0)
+    x0 = wake_start(c)
+    strip = (x[:, 0] > x0) & (x[:, 0] < c["wake_length"]) & (np.abs(x[:, 1]) < c["wake_width"])
+    k = x / lay.h - 0.5
+    on_lattice = np.all(np.abs(k - np.round(k)) < 1e-9, axis=1)
+    assert strip.sum() > 20 and np.all(on_lattice[strip])
+    axis = strip & (np.abs(x[:, 1]) < lay.h)
+    s_axis = np.sqrt(vol[axis]) / lay.h      # h inside, up to 1.32 h in the end cells next to the rings
+    assert np.isclose(np.median(s_axis), 1.0, atol=1e-12) and s_axis.max() < 1.5
+    d, _ = cKDTree(lay.x).query(x[strip], k=2)
+    assert d[:, 1].min() >= 0.5 * lay.h * (1 - 1e-12)
+    polar, _ = _layout(_cfg("polar", ("case.r_far=4.0",)))
+    r = np.hypot(polar.x[:, 0], polar.x[:, 1])
+    assert np.sqrt(polar.vol[np.argmax(np.where(np.abs(polar.x[:, 1]) < 0.3, polar.x[:, 0], -1.0) *
+                               (r < c["wake_length"]))]) > 2.0 * lay.h
+
+
+def test_uniform_stream_stays_uniform_on_the_wake_layout():
+    """As on the lattice layouts: a uniform stream without the body has a zero right-hand side to
+    round-off (bound 2e-11 of max |q|), so has a fluid at rest with the body's boundary terms."""
+    cfg = _cfg("wake", WAKE[1:])
+    pb = build_problem(cfg)
+    p = pb.particles
+    scale = float(jnp.max(jnp.abs(p.q)))
+    _, _, dq = rhs_once(pb, p, None)
+    assert float(jnp.max(jnp.abs(dq))) <= 2e-11 * scale
+    _, _, dq_rest = rhs_once(pb, stream_particles(pb, cfg, 0.0), pb.boundary)
+    assert float(jnp.max(jnp.abs(dq_rest))) <= 2e-11 * scale
+
+
+@pytest.mark.parametrize("overrides, words", [
+    ((*WAKE[:-1], "case.wake_width=0.2"), ["case.wake_width=0.2", "two strip spacings"]),
+    ((*WAKE[:-2], "case.wake_length=3.9", "case.wake_width=0.6"), ["case.wake_length=3.9", "far field"]),
+    ((*WAKE, "case.body=\"ellipse\"", "case.aspect=1.5"), ["case.body='ellipse'", "case.layout=\"wake\""]),
+    (("case.wake_length=3.0",), ["case.wake_length=3", "\"wake\" only"]),
+])
+def test_bad_wake_layouts_name_the_key(overrides, words):
+    with pytest.raises(ConfigError) as e:
+        config_mod.load(CONFIG_DIR / "cylinder.toml", [*SMALL, *overrides])
+    for w in words:
+        assert w in str(e.value), (w, str(e.value))

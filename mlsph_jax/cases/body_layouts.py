@@ -14,6 +14,14 @@
   the same square lattice beyond, with h the particle spacing sqrt(V) of the outermost ring (so
   the ring spacing matches the lattice spacing at the blend radius); lattice points inside the
   outer ring's edge or closer than :data:`GAP` h to a ring particle are removed.
+* ``"wake"`` (decision 86): the polar layout (with its frozen rings) whose fluid ring particles
+  inside a strip behind the body, ``wake_start`` < x < ``case.wake_length``, |y| <
+  ``case.wake_width``, are replaced by the square lattice of spacing h = ``case.lattice_ratio`` x
+  perimeter / ``case.n_theta``; the strip starts where the rings' azimuthal spacing reaches h.
+  Voronoi volumes for every fluid particle (they sum to the polygon of the bisectors between the
+  last fluid ring and the first frozen ring less the body); the frozen rings keep their sector
+  areas.  The polar rings coarsen as r (0.6 D at 5 D for n_theta = 48); the strip keeps the
+  vortices of the near wake resolved by h.
 
 Lattice layouts: beyond ``r_far`` the lattice continues as FROZEN far-field particles
 (:class:`~mlsph_jax.state.Kind`) out to the support radius of the outermost fluid particle plus
@@ -438,3 +446,99 @@ def _mapped_circle(r, r0, n, centre, semi_axes, angle):
 BODY_LAYOUTS.register("polar", Polar())
 BODY_LAYOUTS.register("cartesian", Cartesian())
 BODY_LAYOUTS.register("blend", Blend())
+
+
+# --- the wake-refined polar layout (decision 86) -------------------------------------------------
+
+def wake_spacing(case: Mapping) -> float:
+    """h of the ``wake`` layout's strip: ``lattice_ratio`` x perimeter / ``n_theta`` (as the
+    ``cartesian`` lattice)."""
+    return lattice_spacing(case)
+
+
+def wake_start(case: Mapping) -> float:
+    """x (from the body's centre) where the ``wake`` strip starts: the radius at which the polar
+    rings' azimuthal spacing r 2 pi / n_theta reaches the strip's spacing h, at least the body's
+    extent plus 2 h (the strip stays clear of the body's first rings)."""
+    h = wake_spacing(case)
+    return max(h * case["n_theta"] / (2.0 * math.pi), _extent(case) + 2.0 * h)
+
+
+def _in_strip(x: np.ndarray, case: Mapping) -> np.ndarray:
+    return (x[:, 0] > wake_start(case)) & (x[:, 0] < case["wake_length"]) & (np.abs(x[:, 1]) < case["wake_width"])
+
+
+def _wake_points(case: Mapping, support, names):
+    """The polar layout (fluid and frozen rings) with its fluid particles inside the strip removed,
+    and the strip's lattice points (those closer than GAP h to a kept ring particle removed)."""
+    n_theta = case["n_theta"]
+    lay = polar_layout(case["radius"], n_theta, case["r_far"], far_rings(case, support, names), names=names)
+    n_fluid_rings = len(polar_ring_edges(case["radius"], n_theta, case["r_far"], names=names)[0]) - 1
+    fluid = lay.ring < n_fluid_rings
+    keep = ~(fluid & _in_strip(lay.x, case))
+    h = wake_spacing(case)
+    reach = max(case["wake_length"], case["wake_width"]) + h
+    lat = square_lattice(h, reach)
+    lat = lat[_in_strip(lat, case)]
+    d, _ = cKDTree(lay.x[keep]).query(lat)
+    lat = lat[d >= GAP * h]
+    return lay, fluid, keep, lat, h
+
+
+class Wake:
+    """The polar layout with a refined strip behind the body (decision 86): a square lattice of
+    spacing h = ``lattice_ratio`` x perimeter / ``n_theta`` over ``wake_start`` < x <
+    ``wake_length``, |y| < ``wake_width`` replaces the ring particles there, so the near wake keeps
+    the spacing the rings have at the strip's start instead of growing with r; Voronoi volumes
+    (clipped to the body) for every fluid particle, the frozen rings keep their sector areas."""
+
+    @staticmethod
+    def check(case: Mapping, support: Callable[[float], float]) -> list[str]:
+        if case["body"] != "circle":
+            return [f"invalid case.body={case['body']!r} with case.layout=\"wake\": the wake strip lies along +x, "
+                    "the stream of a circle; allowed: case.body=\"circle\" (or another layout)"]
+        h, x0 = wake_spacing(case), wake_start(case)
+        if case["n_theta"] / case["lattice_ratio"] < MIN_SPACINGS_AROUND:
+            return [f"invalid case.lattice_ratio={case['lattice_ratio']!r} with case.n_theta={case['n_theta']}: "
+                    f"allowed: case.n_theta / case.lattice_ratio >= {MIN_SPACINGS_AROUND}"]
+        problems = []
+        if case["wake_width"] < 2.0 * h:
+            problems.append(f"invalid case.wake_width={case['wake_width']!r}: narrower than two strip spacings "
+                            f"({h:.4g} each); allowed: case.wake_width >= {2.0 * h:.4g}")
+        far = case["r_far"] - support(h) - 2.0 * h
+        if not x0 + 2.0 * h < case["wake_length"] < far or math.hypot(case["wake_length"], case["wake_width"]) >= far:
+            problems.append(f"invalid case.wake_length={case['wake_length']!r} with case.wake_width="
+                            f"{case['wake_width']!r} and case.r_far={case['r_far']!r}: the strip must start at x = "
+                            f"{x0:.4g} (where the rings reach its spacing {h:.4g}) and end inside the far field less "
+                            f"the support of its particles (corner radius < {far:.4g}); allowed: {x0 + 2.0 * h:.4g} < "
+                            f"case.wake_length and hypot(case.wake_length, case.wake_width) < {far:.4g}")
+        return problems
+
+    @staticmethod
+    def build(case: Mapping, body, params, support, names) -> BodyLayout:
+        lay, fluid, keep, lat, h = _wake_points(case, support, names)
+        ring_fluid = lay.x[fluid & keep]
+        frozen = lay.x[~fluid]
+        pts = np.concatenate([ring_fluid, lat, frozen])
+        n_f = len(ring_fluid) + len(lat)
+        vf = voronoi_volumes(pts, n_f, body_polygon(body, params))
+        worst = spacing_ratio(body, params, pts[:n_f], vf)
+        if worst > 1.0 + 1e-9:
+            raise InputError(f"invalid case.n_theta={case['n_theta']!r} with case.layout=\"wake\": the body's "
+                             f"quadrature pieces are up to {worst:.3g} spacings sqrt(V) of the nearest particle "
+                             "long; allowed: at most 1 spacing, a larger case.n_theta or case.layout=\"polar\"")
+        vol = np.concatenate([vf, lay.vol[~fluid]])
+        kind = np.concatenate([np.full(n_f, int(Kind.FLUID)), np.full(len(frozen), int(Kind.FROZEN))])
+        return BodyLayout(pts, vol, kind, h, _fixed_positions(pts, vol, body, "wake", params))
+
+    @staticmethod
+    def count(case: Mapping, support: Callable[[float], float]) -> tuple[int, tuple[str, ...]]:
+        """Exact: the kept ring particles and the strip's lattice points (built without volumes)."""
+        names = ("case.radius", "case.n_theta", "case.r_far")
+        _, _, keep, lat, _ = _wake_points(case, support, names)
+        return (int(keep.sum()) + len(lat),
+                ("case.layout", "case.n_theta", "case.r_far", "case.lattice_ratio", "case.wake_length",
+                 "case.wake_width"))
+
+
+BODY_LAYOUTS.register("wake", Wake())
