@@ -15,11 +15,7 @@ a uniform square lattice of spacing ``lattice_ratio`` x perimeter / ``n_theta`` 
 the polar rings out to ``blend_radius`` with the lattice of the last ring's spacing beyond; their
 volumes are Voronoi cells clipped to the fluid, their far field is the lattice continued as frozen
 particles, and they do not follow the body's shape parameters (shape derivatives need the polar
-layout).  ``"wake"`` (decision 86): the polar layout with the ring particles of a strip behind the
-body (from where the rings' spacing reaches h = ``lattice_ratio`` x perimeter / ``n_theta`` to x =
-``wake_length``, |y| < ``wake_width``) replaced by the square lattice of spacing h, so that the
-near wake keeps that spacing instead of growing with r; Voronoi volumes, the polar frozen rings.
-The body's quadrature keeps ``n_theta`` points on every layout.
+layout).  The body's quadrature keeps ``n_theta`` points on every layout.
 
 Body.  No-slip adiabatic wall by the boundary integral of thesis eq. 4.24
 (:mod:`mlsph_jax.wall_integral`, ``boundary_integral``; SPEC §5.8): a
@@ -269,8 +265,7 @@ def layout_problems(cfg: Mapping) -> list[str]:
     """The layout's own checks (:data:`~mlsph_jax.cases.body_layouts.BODY_LAYOUTS`), and no
     lattice key set for a layout that does not use it (nothing silently ignored)."""
     c = cfg["case"]
-    used = {"lattice_ratio": ("cartesian", "wake"), "blend_radius": ("blend",), "wake_length": ("wake",),
-            "wake_width": ("wake",)}
+    used = {"lattice_ratio": ("cartesian",), "blend_radius": ("blend",)}
     problems = [f"invalid case.{k}={show(c[k])} with case.layout={show(c['layout'])}: it is used by case.layout="
                 f"{' / '.join(map(show, lays))} only; allowed: the default {show(CYLINDER_KEYS[k].default)} or "
                 f"case.layout={show(lays[0])}"
@@ -298,25 +293,16 @@ CYLINDER_KEYS: dict[str, Key] = {
                   doc="particles around the body (docs/architecture.md decision 72): \"polar\" body-fitted rings "
                       "with geometric growth (decisions 58, 65); \"cartesian\" a uniform square lattice of spacing "
                       "case.lattice_ratio x perimeter / case.n_theta with the body cut out; \"blend\" the polar "
-                      "rings out to case.blend_radius and the lattice of the last ring's spacing beyond; \"wake\" the "
-                      "polar rings with a square lattice strip behind the body (case.wake_length, case.wake_width; "
-                      "decision 86); lattice "
+                      "rings out to case.blend_radius and the lattice of the last ring's spacing beyond; lattice "
                       "volumes are Voronoi cells clipped to the fluid; shape derivatives need \"polar\""),
     "lattice_ratio": Key(float, 1.0, minimum=0.0, exclusive_minimum=True,
-                         doc="case.layout = \"cartesian\" or \"wake\" only: lattice spacing h (of the whole lattice, "
-                             "or of the wake strip) over the body's quadrature spacing (perimeter / case.n_theta); "
-                             "n_theta / lattice_ratio >= 20 spacings around the body, and the quadrature may not be "
-                             "sparser than the particles next to the body"),
+                         doc="case.layout = \"cartesian\" only: lattice spacing h over the body's quadrature "
+                             "spacing (perimeter / case.n_theta); n_theta / lattice_ratio >= 20 spacings around the "
+                             "body, and the quadrature may not be sparser than the particles next to the body"),
     "blend_radius": Key(float, 2.0, minimum=0.0, exclusive_minimum=True, unit="m",
                         doc="case.layout = \"blend\" only: outer radius of the polar rings (the lattice beyond has "
                             "the last ring's spacing sqrt(V)); between the body's second ring and case.r_far less "
                             "two lattice spacings"),
-    "wake_length": Key(float, 6.0, minimum=0.0, exclusive_minimum=True, unit="m",
-                       doc="case.layout = \"wake\" only: x (from the body's centre) where the refined wake strip ends; "
-                           "it starts where the rings' spacing reaches the strip's (decision 86)"),
-    "wake_width": Key(float, 1.5, minimum=0.0, exclusive_minimum=True, unit="m",
-                      doc="case.layout = \"wake\" only: half-width |y| of the refined wake strip (at least two "
-                          "strip spacings)"),
     "body": Key(str, "circle", choices=BODIES,
                 doc="the body: a circle of case.radius, or an ellipse of the same area (equal-area radius "
                     "case.radius, aspect ratio case.aspect, angle of attack case.alpha) on the conformally "
