@@ -173,7 +173,7 @@ class Simulation:
         self.headroom = headroom
         if moving_headroom != 0 and not moving_headroom >= 1.0:
             raise InputError(f"invalid scheme.moving_neighbor_headroom={moving_headroom!r}; allowed: 0 (automatic: "
-                             "2.0 in 1D, 1.6 in 2D/3D) or a number >= 1.0")
+                             "2.0 in 1D, 1.3 in 2D/3D, decision 84) or a number >= 1.0")
         #: the driver's lower bound on the neighbour headroom of moving particles (True: automatic,
         #: :func:`mlsph_jax.run.moving_min_headroom`; ``scheme.moving_neighbor_headroom``)
         self.moving_headroom = float(moving_headroom) if moving_headroom else True

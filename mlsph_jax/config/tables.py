@@ -182,7 +182,8 @@ SCHEME_KEYS: dict[str, Key] = {
                                         "otherwise, decision 84: an overflow regrows the capacity and recompiles, "
                                         "never drops a neighbour). A higher value (e.g. 1.6) leaves a compressing "
                                         "flow room before it regrows; every padding slot costs every pass over "
-                                        "the stencil (docs/performance.md); same numbers"),
+                                        "the stencil (docs/performance.md); it scales the cell capacity too; the "
+                                        "same numbers to round-off (bitwise in the measured runs)"),
 }
 
 
