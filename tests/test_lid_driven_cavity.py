@@ -2,18 +2,19 @@
 config checks, walls and corner ghosts, boundary-integral walls (thesis eq. 4.24; decision 61),
 centre-line interpolation, and a coarse Re = 100 run against Ghia et al. (1982).
 
-Measured at Re = 100 (Eulerian MLSPH-ALE, quadratic reconstruction, c0 = 10 u_lid, CFL 0.6),
-deviations from Ghia at the 15 interior points of each centre line (max / rms):
+Measured at Re = 100 with the QUADRATIC reconstruction of the config before issue 14 (Eulerian
+MLSPH-ALE, c0 = 10 u_lid, CFL 0.6), deviations from Ghia at the 15 interior points of each centre
+line (max / rms); the config's scheme now does better (24 x 24: 0.0066 / 0.0064, see RUN24 below):
 
     n x n     stopped at (steady_tol 2e-3)   u dev            v dev            u_min (Ghia -0.2109)
     24 x 24   t = 6                          0.0702 / 0.0407  0.0670 / 0.0347  -0.2197
-    40 x 40   t = 8 (built-in config)        0.0451 / 0.0251  0.0324 / 0.0162  -0.2095
+    40 x 40   t = 8 (the config's size)      0.0451 / 0.0251  0.0324 / 0.0162  -0.2095
     50 x 50   t = 8                          0.0341 / 0.0180  0.0190 / 0.0093  -0.2096
     (50 x 50 continued to t = 20: u 0.0342 / 0.0177, v 0.0175 / 0.0085)
 
 The 24 x 24 state misses Ghia's Re = 400 profiles by 0.229 (u) / 0.293 (v) and the Re = 1000
 profiles by 0.306 / 0.400, and the fluid at rest misses the Re = 100 ones by 0.80 / 0.245, so
-the bounds below (~20 % above the measured 24 x 24 values) separate the Re = 100 solution from
+the bounds below (25 % above the measured 24 x 24 values of the config's scheme) separate the Re = 100 solution from
 all of them.  (At 24 x 24 the simulated flow itself depends only weakly on Re: u_min = -0.2066,
 -0.2123, -0.2197, -0.2266, -0.2278 for Re = 10, 30, 100, 1000, 1e5 at t = 6 -- the centre lines
 at Re <= 100 are close to Stokes flow, and the scheme's numerical dissipation caps the effective
@@ -478,7 +479,7 @@ def test_boundary_integral_walls_re100_no_worse_than_mirror_ghosts():
 def test_re400_re1000_at_50x50_meet_the_issue_14_targets(re, t_end):
     """Issue 14: 50 x 50 particles, max |u - Ghia| <= 0.03 and max |v - Ghia| <= 0.05 along the
     centre lines, Ghia's table of the same Reynolds number.  Measured (docs/validation.md,
-    2026-11-26/27, load 5-8): the config (Thornber's correction, no inviscid wall friction) Re = 400
+    2026-11-26, load 5-8): the config (Thornber's correction, no inviscid wall friction) Re = 400
     0.0155 / 0.0131 (meets, 34 min), Re = 1000 0.0305 / 0.0275 (u misses by 0.0005, 68 min); with the
     ghosts' wall friction Re = 400 0.016 / 0.009 and Re = 1000 0.080 / 0.058; without Thornber as well
     Re = 400 0.055 / 0.025 and Re = 1000 0.159 / 0.109.  At 40 x 40 with quadratic reconstruction the deviations
