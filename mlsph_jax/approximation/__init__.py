@@ -39,7 +39,7 @@ import jax.numpy as jnp
 from ..errors import InputError
 from ..kernels import get_kernel
 from ..registry import Registry
-from ..state import tiny
+from ..state import minimum_image, tiny
 from . import basis, mls
 
 APPROXIMATIONS: Registry = Registry("scheme.approximation", protocol=("build", "basis_degree", "has_coeffs"),
@@ -124,19 +124,19 @@ def smoothing_length(vol, beta: float, dim: int):
 def pair_offsets(x, idx, mask, box_length=None, periodic=None):
     """dx[i, k] = x_j - x_i (minimum image), zero on padding slots.
 
-    Component by component (the operations of :func:`minimum_image`, bitwise the same): the
+    Component by component (:func:`minimum_image` on one axis at a time, bitwise the same): the
     whole-vector form made XLA:CPU materialise the broadcast ``x[:, None, :]`` as an [N, K, d]
     array, a pass over the stencil of its own in every moving stage (docs/performance.md)."""
     n, d = x.shape
     j = jnp.where(mask, idx, jnp.arange(n)[:, None])
+    wrap = box_length is not None and periodic is not None
     cols = []
     for a in range(d):
         xa = x[:, a]
-        da = xa[j] - xa[:, None]
-        if box_length is not None and periodic is not None:
-            L = jnp.asarray(box_length, x.dtype)[a]
-            da = jnp.where(jnp.asarray(periodic)[a], da - L * jnp.round(da / L), da)
-        cols.append(jnp.where(mask, da, 0.0))
+        da = (xa[j] - xa[:, None])[..., None]
+        if wrap:
+            da = minimum_image(da, jnp.asarray(box_length)[a:a + 1], jnp.asarray(periodic)[a:a + 1])
+        cols.append(jnp.where(mask, da[..., 0], 0.0))
     return jnp.stack(cols, axis=-1)
 
 
