@@ -392,7 +392,7 @@ def run24():
     return cfg, pb, run_problem(pb, cfg, out_dir=None, quiet=True)
 
 
-@pytest.mark.slow   # 24 x 24 to t = 9 (485 s contended, decision 87); the slow suite also holds the 40 x 40 Ghia runs of both wall types
+@pytest.mark.slow   # 24 x 24 to t = 9: 485 s contended; the slow suite holds the 40 x 40 runs too
 def test_re100_centerlines_match_ghia(run24):
     """24 x 24, Re = 100 to the steady state, the config's cubic reconstruction with Thornber's
 correction and mirror walls without the inviscid wall friction: max deviations from Ghia 0.0066 (u)
