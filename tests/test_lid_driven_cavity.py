@@ -478,7 +478,8 @@ def test_re400_re1000_at_50x50_meet_the_issue_14_targets(re, t_end, steady_tol):
     ghosts' wall friction Re = 400 0.016 / 0.009 and Re = 1000 0.080 / 0.058; without Thornber as well
     Re = 400 0.055 / 0.025 and Re = 1000 0.159 / 0.109.  Re = 1000 is not steady at the config's
     steady_tol 2e-3 (stop at t = 33: 0.0305 / 0.0275, u still falling); with 5e-4 it runs on: 0.0293,
-    0.0284, 0.0276 (u) and 0.0271, 0.0268, 0.0265 (v) at t = 34, 35, 36 (the same run's snapshots).
+    0.0284, 0.0276 (u) and 0.0271, 0.0268, 0.0265 (v) at t = 34, 35, 36 (the same run's snapshots)
+    and stops at t = 40 with 0.0258 / 0.0259 (36,337 steps, ~97 min at load 2-9).
     At 40 x 40 with quadratic reconstruction the deviations
     were 0.17 / 0.20 and 0.27 / 0.30."""
     cfg = config.load(CFG, [*QUIET, "case.n=50", f"case.re={re}", f"time.t_end={t_end}",
