@@ -26,6 +26,11 @@ normal equations L L^T mu = r are solved by block-Jacobi preconditioned conjugat
 (decision 59).  On a lattice (*) already holds to round-off, so the areas are unchanged there.
 One CG solve per geometry: once per run for Eulerian particles (and after a neighbour regrowth),
 once per stage for moving ones.
+``linear_interior`` / ``quadratic_interior`` (decision 88) impose (*) only on the rows whose
+uncorrected closure |sum_j A_ij| h_i / V_i is at most ``INTERIOR_CLOSURE``: complete stencils.  Where a
+stencil is truncated (a body's first rings, the outer edge of frozen far-field rings) the exact identity
+has a boundary term that (*) lacks; imposing (*) there makes Delta A O(1) and, through the coupling of
+the rows, spreads it over the whole layout (the cylinder diverged: docs/validation.md, cylinder).
 ``apply`` returns ``(A, converged)``; a solve that stops at ``CG_MAXITER`` above its tolerance sets
 ``Status.AREA_CORRECTION_UNCONVERGED`` (through ``Geometry.overflow``), which stops the run loudly.
 """
@@ -83,6 +88,9 @@ class ConsistentCorrection:
     (module docstring)."""
 
     degree: int = 2
+    #: ``None``: (*) on every row.  A number: (*) only on the rows whose closure
+    #: |sum_j A_ij| h_i / V_i is at most this (complete stencils; decision 88)
+    closure_tol: float | None = None
 
     def apply(self, A, dx, h, vol, jsafe, rev, pair_mask):
         # solved in float64 whatever the state's precision (run.precision = "float32" keeps the
@@ -93,9 +101,13 @@ class ConsistentCorrection:
         Q = jnp.where(pair_mask[..., None], Q, 0.0)
         target = vol[:, None, None] * jnp.swapaxes(G, 1, 2)          # [N, d, m-1]
         w = pair_mask[..., None].astype(A.dtype)
+        if self.closure_tol is None:
+            rows = jnp.ones_like(vol)
+        else:
+            rows = (jnp.linalg.norm(jnp.sum(A, axis=1), axis=-1) * h / vol <= self.closure_tol).astype(A.dtype)
 
         def moments(a):                                              # [N, K, d] -> [N, d, m-1]
-            return jnp.einsum("nka,nkr->nar", a, Q)
+            return rows[:, None, None] * jnp.einsum("nka,nkr->nar", a, Q)
 
         def lift(y):                                                 # free slot field -> antisymmetric
             return w * (y - reverse_gather(y, jsafe, rev))
@@ -119,7 +131,7 @@ class ConsistentCorrection:
             return jnp.einsum("nrs,nas->nar", Jinv, v)
 
         scale = jnp.sqrt(jnp.sum((vol / h) ** 2))                    # the size of the areas (V / h)
-        r = (target - moments(A)) / scale
+        r = (rows[:, None, None] * target - moments(A)) / scale
         # the tolerance of the areas' own precision: a float32 state only needs (and its rounded
         # lattice offsets only allow) the correction to float32 resolution
         atol = CG_ATOL if out_dtype == jnp.float64 else 0.1 * float(jnp.finfo(out_dtype).eps)
@@ -134,3 +146,7 @@ class ConsistentCorrection:
 AREA_CORRECTIONS.register("none", NoCorrection())
 AREA_CORRECTIONS.register("linear", ConsistentCorrection(1))
 AREA_CORRECTIONS.register("quadratic", ConsistentCorrection(2))
+#: decision 88: (*) only on complete stencils (closure below INTERIOR_CLOSURE)
+INTERIOR_CLOSURE = 0.05
+AREA_CORRECTIONS.register("linear_interior", ConsistentCorrection(1, INTERIOR_CLOSURE))
+AREA_CORRECTIONS.register("quadratic_interior", ConsistentCorrection(2, INTERIOR_CLOSURE))

@@ -71,7 +71,8 @@ class Scheme:
                               0 = not given
     parachute_flux:           flux of the pairs MOOD reconstructs at first order: ``same`` (the
                               scheme's flux) or a registered flux (e.g. ``rusanov``)
-    area_correction:          ``none`` | ``linear`` | ``quadratic``: consistency correction of
+    area_correction:          ``none`` | ``linear`` | ``quadratic`` | ``linear_interior`` |
+                              ``quadratic_interior`` (decision 88): consistency correction of
                               the area vectors (:mod:`mlsph_jax.area_correction`, decision 59)
     self_flux:                keep the -F_i . sum_j A_ij term (thesis eq. 4.36)
     ghost_shear_dissipation:  ``True`` (thesis: the flux of a fluid-ghost pair sees the whole

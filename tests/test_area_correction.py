@@ -20,8 +20,10 @@ from mlsph_jax.area_correction import moment_defect
 from mlsph_jax.cases import build_problem
 from mlsph_jax.errors import ConfigError, InputError
 from mlsph_jax.rhs import geometry
+from mlsph_jax.run import setup_run
 from mlsph_jax.scheme import Scheme
 from mlsph_jax.stencil import reverse_gather
+from mlsph_jax.testing import CONFIG_DIR
 
 BASE = """
 [case]
@@ -147,3 +149,42 @@ def test_an_unconverged_correction_is_reported_and_stops_the_run(monkeypatch):
                               "time.t_end=0.01", "output.plots=false", "output.progress=false"])
     with pytest.raises(SimulationError, match="area_correction"):
         run_problem(build_problem(cfg), cfg, quiet=True)
+
+
+def _cylinder_geometry(correction: str):
+    cfg = config.load(CONFIG_DIR / "cylinder.toml", ["case.n_theta=32", "case.r_far=10.0",
+                                                     f"scheme.area_correction={correction}"])
+    pb = build_problem(cfg)
+    return pb, setup_run(pb).geometry_fn(pb.particles)(pb.particles)
+
+
+@pytest.mark.slow   # three geometries of the cylinder layout (~1 min)
+def test_interior_correction_stays_small_on_the_graded_cylinder_layout():
+    """Decision 88: on the cylinder's graded polar layout the body's rows and the frozen far field
+    have truncated stencils, where (*) is not the right identity (a boundary term is missing).
+    Imposing it there (``linear``) makes the least-squares correction O(1): the median interior
+    pair area changes by > 10 % and the closure sum_j A_ij grows from ~0.002 to > 0.1 V/h, which
+    diverged within 100 steps.  ``linear_interior`` imposes (*) only on the complete stencils: it
+    makes those rows exact and changes the interior areas by a few per cent."""
+    pb, g0 = _cylinder_geometry("none")
+    _, g = _cylinder_geometry("linear_interior")
+    _, gl = _cylinder_geometry("linear")
+    vol = pb.particles.vol
+    r = jnp.linalg.norm(pb.particles.x, axis=1)
+    interior = np.asarray((r > 1.5) & (r < 6.0))
+    closure0 = np.asarray(jnp.linalg.norm(jnp.sum(g0.A, axis=1), axis=-1) * g0.h / vol)
+    complete = closure0 <= 0.05
+    defect = np.asarray(moment_defect(g.A, g.dx, g.h, vol, g.pair_mask, 1))
+    assert np.abs(defect[complete]).max() < 1e-8                       # (*) exact on complete stencils
+    assert np.abs(np.asarray(moment_defect(g0.A, g0.dx, g0.h, vol, g0.pair_mask, 1))[interior]).max() > 1e-3
+    pm = np.asarray(g0.pair_mask) & interior[:, None]
+
+    def rel_change(gc):
+        return float(np.median((np.linalg.norm(np.asarray(gc.A - g0.A), axis=-1)
+                                / np.linalg.norm(np.asarray(g0.A), axis=-1))[pm]))
+
+    assert rel_change(g) < 0.06
+    assert rel_change(gl) > 0.1
+    closure = np.asarray(jnp.linalg.norm(jnp.sum(g.A, axis=1), axis=-1) * g.h / vol)
+    assert closure[interior].max() < 0.05 < np.asarray(jnp.linalg.norm(jnp.sum(gl.A, axis=1), axis=-1)
+                                                       * gl.h / vol)[interior].max()
