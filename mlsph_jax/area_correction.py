@@ -31,6 +31,8 @@ uncorrected closure |sum_j A_ij| h_i / V_i is at most ``INTERIOR_CLOSURE``: comp
 stencil is truncated (a body's first rings, the outer edge of frozen far-field rings) the exact identity
 has a boundary term that (*) lacks; imposing (*) there makes Delta A O(1) and, through the coupling of
 the rows, spreads it over the whole layout (the cylinder diverged: docs/validation.md, cylinder).
+The closure is not a completeness test on irregular periodic layouts (perturbed Taylor-Green: median
+0.27 V/h, 614 of 625 rows above the threshold): use ``quadratic`` there.
 ``apply`` returns ``(A, converged)``; a solve that stops at ``CG_MAXITER`` above its tolerance sets
 ``Status.AREA_CORRECTION_UNCONVERGED`` (through ``Geometry.overflow``), which stops the run loudly.
 """
