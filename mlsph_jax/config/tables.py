@@ -97,9 +97,11 @@ SCHEME_KEYS: dict[str, Key] = {
     "area_correction": Key(str, "none", choices=names_of("scheme.area_correction"),
                            doc="correction of the MLSPH-ALE area vectors A_ij (decision 59): none (thesis "
                                "eq. 4.36, one-point quadrature), or the smallest antisymmetric correction "
-                               "making sum_j A_ij = 0 and the midpoint divergence exact for fluxes of "
-                               "degree <= 1 (linear) or <= 2 (quadratic) on any layout (one CG solve per "
-                               "geometry)"),
+                               "making the midpoint divergence exact for fluxes of degree <= 1 (linear) or <= 2 "
+                               "(quadratic) on any layout (one CG solve per geometry); linear_interior / "
+                               "quadratic_interior impose it only on complete stencils (uncorrected "
+                               "closure <= 0.05 V/h; for layouts with walls or frozen far fields, "
+                               "decision 88)"),
     "self_flux": Key(bool, True,
                      doc="include the self-flux term -F_i.sum_j A_ij (thesis default; keeps "
                          "uniform states exact, conserves only up to a quadrature defect)"),
