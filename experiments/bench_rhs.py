@@ -29,6 +29,13 @@ Usage::
     python experiments/bench_rhs.py --sizes 10000 40000 160000 --repeat 5
     python experiments/bench_rhs.py --sizes 40000 --schemes mlsph_ale-2 --flux rusanov hllc hllc_lm hllc_zha \
         --low-mach none thornber
+    python experiments/bench_rhs.py --sizes 40000 --schemes mlsph_ale-2 --baseline 28afe3f --rounds 9
+
+``--baseline REF``: this tree's ``rhs`` against that of the git ref (exported and imported as a
+second package, as in bench_moving_frames.py), both compiled in one process and called in turn
+(A B A B ...): wall and process CPU time (best and median), the load average before and after,
+and the largest difference of d(VU)/dt (0 when a change keeps the numbers); writes
+``experiments/output/bench_rhs_ab.json``.
 """
 
 from __future__ import annotations
@@ -171,6 +178,60 @@ def interleaved_min(calls, rounds: int) -> list[float]:
     return best
 
 
+def baseline_rhs(pkg, name: str, n_target: int, seed: int, frame: str, dim: int = 2):
+    """``(compiled rhs, args, N, K)`` of the bench's ``name`` scheme built with ``pkg`` (this
+    package or a baseline copy of it, :func:`bench_moving_frames.baseline_package`)."""
+    import importlib
+
+    mod = {m: importlib.import_module(f"{pkg.__name__}.{m}") for m in ("neighbors", "rhs", "scheme", "state", "eos")}
+    scheme = mod["scheme"].Scheme(**SCHEMES[name], frame=frame)
+    x, dx = layout(n_target, np.random.default_rng(seed), dim=dim)
+    n = x.shape[0]
+    params = mod["state"].Params({"eos.gamma": 1.4})
+    vol = np.full(n, dx**dim)
+    particles = mod["state"].make_particles(x, vol, smooth_state(x, params))
+    domain = mod["state"].Domain((0.0,) * dim, (1.0,) * dim, (True,) * dim)
+    _, nl = mod["neighbors"].allocate(x, scheme.beta * vol ** (1.0 / dim), domain, support=scheme.support)
+    geom = jax.jit(lambda p, nl: mod["rhs"].geometry(p.x, p.vol, nl, scheme, domain))(particles, nl)
+    c = jax.jit(lambda p, prm, g: mod["rhs"].rhs(p, prm, g, scheme)).lower(particles, params, geom).compile()
+    return c, (particles, params, geom), n, int(nl.idx.shape[1])
+
+
+def ab_rounds(baseline: str, name: str, n_target: int, rounds: int, seed: int, frame: str, dim: int) -> dict:
+    """This tree's rhs against ``baseline``'s (a git ref), compiled in one process and called in
+    turn (base, this, base, this, ...) ``rounds`` times: best and median wall time and process CPU
+    time of each, the load average before and after, and max |d(VU)/dt this - base|."""
+    import os
+    import sys
+    import tempfile
+
+    sys.path.insert(0, str(pathlib.Path(__file__).parent))
+    from bench_moving_frames import baseline_package
+
+    tmp = tempfile.TemporaryDirectory()
+    calls = {"base": baseline_rhs(baseline_package(baseline, tmp.name), name, n_target, seed, frame, dim),
+             "this": baseline_rhs(mlsph_jax, name, n_target, seed, frame, dim)}
+    out = {k: np.asarray(c(*a)[2]) for k, (c, a, _, _) in calls.items()}
+    load0 = os.getloadavg()
+    wall = {k: [] for k in calls}
+    cpu = {k: [] for k in calls}
+    for _ in range(rounds):
+        for k, (c, a, _, _) in calls.items():
+            w0, c0 = time.perf_counter(), time.process_time()
+            jax.block_until_ready(c(*a))
+            wall[k].append(time.perf_counter() - w0)
+            cpu[k].append(time.process_time() - c0)
+    load1 = os.getloadavg()
+    n, cap = calls["this"][2], calls["this"][3]
+    res = dict(baseline=baseline, scheme=name, n=n, capacity=cap, rounds=rounds, load_average=[load0, load1],
+               max_abs_diff_dq=float(np.max(np.abs(out["this"] - out["base"]))))
+    for k in calls:
+        res[k] = dict(wall_best_s=min(wall[k]), wall_median_s=float(np.median(wall[k])),
+                      cpu_best_s=min(cpu[k]), cpu_median_s=float(np.median(cpu[k])),
+                      particles_per_s_best=n / min(wall[k]))
+    return res
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("--sizes", type=int, nargs="+", default=[10_000, 40_000, 160_000])
@@ -187,12 +248,36 @@ def main(argv=None) -> None:
                    help="scheme.reference_mach for the fluxes that need one (hllc_lm)")
     p.add_argument("--dim", type=int, default=2, choices=[2, 3], help="2D square or 3D cube (N = n^dim)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--baseline", default=None,
+                   help="git ref: instead of the table, this tree's rhs against the ref's, interleaved in one "
+                        "process (--rounds rounds; wall and process CPU time, load average)")
+    p.add_argument("--rounds", type=int, default=7, help="interleaved rounds of --baseline")
     p.add_argument(
         "--out",
         type=pathlib.Path,
         default=pathlib.Path(__file__).parent / "output" / "bench_rhs.json",
     )
     args = p.parse_args(argv)
+    if args.baseline:
+        rows = []
+        for name in args.schemes:
+            for n in args.sizes:
+                r = ab_rounds(args.baseline, name, n, args.rounds, args.seed, args.frame, args.dim)
+                rows.append(r)
+                (l0, l1) = r["load_average"]
+                for k in ("base", "this"):
+                    v = r[k]
+                    print(f"{name} N={r['n']} K={r['capacity']} {k:>4s}: wall best {1e3 * v['wall_best_s']:7.1f} ms "
+                          f"(median {1e3 * v['wall_median_s']:7.1f}), CPU best {1e3 * v['cpu_best_s']:7.1f} ms "
+                          f"(median {1e3 * v['cpu_median_s']:7.1f}), {v['particles_per_s_best']:.3e} particle "
+                          "evaluations/s", flush=True)
+                print(f"  this / base: wall {r['this']['wall_best_s'] / r['base']['wall_best_s']:.3f} (best), "
+                      f"{r['this']['wall_median_s'] / r['base']['wall_median_s']:.3f} (median); CPU "
+                      f"{r['this']['cpu_best_s'] / r['base']['cpu_best_s']:.3f} (best); max |dq - base| "
+                      f"{r['max_abs_diff_dq']:.1e}; load average {l0[0]:.2f} -> {l1[0]:.2f}", flush=True)
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.with_name("bench_rhs_ab.json").write_text(json.dumps(rows, indent=2))
+        return
 
     hdr = (
         f"{'scheme':<12} {'flux':<18} {'N':>7} {'K':>3} {'comp g/r/gr s':>15} {'rhs s':>8} {'rhs p/s':>9} "

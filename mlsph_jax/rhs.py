@@ -36,7 +36,10 @@ Implementation (performance on CPU).  Everything per pair is written on [rows, K
    midpoint states, stored as ``own[N, K, nv]``;
 2. per block, the j-side states by a flat gather ``own.reshape(N K, nv)[j K + rev]``, the
    numerical flux, and all sums over the stencil (sum_j G.A, sum_j A, dV, dx) as one variadic
-   reduction, which XLA:CPU fuses into a single loop.
+   reduction, which XLA:CPU fuses into a single loop.  Two versions of this sweep sit behind a
+   ``lax.cond``: the general one, with the MOOD fallback to the first-order states U_i, U_j of
+   pairs with min(ppd_i, ppd_j) = 0, and, when no particle is demoted, one without those states
+   (no gathers of U_j and ppd_j, no selects): the same values, bitwise (decision 89).
 
 The results equal the straightforward array formulation to round-off
 (tests/test_rhs_equivalence_perf.py); experiments/bench_rhs.py measures the throughput.
@@ -201,17 +204,21 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme, bo
             own = recon.midpoint_states(F, geom, degree)                            # i-side states, [N, K, nv]
         own_flat = own.reshape(n * k, own.shape[-1])
 
-    def block(b, rows):
+    def block(b, rows, demoted=True):
         jb = rows(jsafe)
         Fi = [rows(c)[:, None] for c in Fc]
         Fj = [c[jb] for c in Fc]
+        high = None
         if degree > 0:
             flat = flat_reverse_index(jb, rows(geom.rev), k)
             ob = _cols(rows(own))
             oj = _cols(own_flat[flat])                                       # own[j, rev]
-            high = jnp.minimum(rows(ppd)[:, None], ppd[jb]) > 0
-            Fm = [jnp.where(high, ob[v], Fi[v]) for v in range(nv)]
-            Fp = [jnp.where(high, oj[v], Fj[v]) for v in range(nv)]
+            if demoted:
+                high = jnp.minimum(rows(ppd)[:, None], ppd[jb]) > 0
+                Fm = [jnp.where(high, ob[v], Fi[v]) for v in range(nv)]
+                Fp = [jnp.where(high, oj[v], Fj[v]) for v in range(nv)]
+            else:       # no particle demoted: every pair is high order (the same values, see below)
+                Fm, Fp = ob, oj
         else:
             Fm, Fp = [jnp.broadcast_to(f, jb.shape) for f in Fi], Fj
         Fm = variables.to_conservative(Fm, eos, params)
@@ -236,7 +243,7 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme, bo
             Fm, Fp = without_wall_shear_jump(Fm, Fp, [c[jb] for c in tang], eos, params)
         Fm, Fp = low_mach.correct(Fm, Fp, w_ij, eos, params, scheme)
         GA = flux.pair_flux(Fm, Fp, w_ij, A, n_pair, eos, params, scheme)
-        if parachute is not None:                   # (needs MOOD, hence degree > 0 and `high`)
+        if parachute is not None and high is not None:      # (needs MOOD, hence degree > 0)
             G1 = parachute.pair_flux(Fm, Fp, w_ij, A, n_pair, eos, params, scheme)
             GA = [jnp.where(high, g, g1) for g, g1 in zip(GA, G1, strict=True)]
         if fused:                                   # G - D_ij (D never order-reduced by MOOD)
@@ -260,7 +267,19 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme, bo
     row_args = (jsafe, geom.A, geom.pair_mask, *Fc) + ((geom.rev, own, ppd) if degree > 0 else ())
     row_args += (() if eulerian else tuple(wc)) + ((geom.dx,) if normal.needs_pair_vector or fused else ())
     row_args += (fit_flat, geom.h) if fused else ()
-    (sums,) = apx.row_blocks(block, n, apx.block_rows(n, k), [((n, n_out), U.dtype)], row_args)
+
+    def sweep(demoted):
+        fn = block if demoted else functools.partial(block, demoted=False)
+        return apx.row_blocks(fn, n, apx.block_rows(n, k), [((n, n_out), U.dtype)], row_args)[0]
+
+    if degree > 0:
+        # MOOD demotes pairs to first order only where some ppd is 0; when none is (the common
+        # case) the sweep that skips the first-order states F_j (nv gathers per pair), the
+        # j-side ppd and the state selects runs instead: where(True, a, b) is a, so the values
+        # are bitwise those of the general sweep (docs/performance.md, decision 89).
+        sums = jax.lax.cond(jnp.min(ppd) > 0, lambda: sweep(False), lambda: sweep(True))
+    else:
+        sums = sweep(True)
     dq = -sums[:, :nv]
     if scheme.self_flux:
         dq = dq + ale_flux_dot(U, prim, w, sums[:, nv:nv + d], eos)
