@@ -15,7 +15,11 @@ a uniform square lattice of spacing ``lattice_ratio`` x perimeter / ``n_theta`` 
 the polar rings out to ``blend_radius`` with the lattice of the last ring's spacing beyond; their
 volumes are Voronoi cells clipped to the fluid, their far field is the lattice continued as frozen
 particles, and they do not follow the body's shape parameters (shape derivatives need the polar
-layout).  The body's quadrature keeps ``n_theta`` points on every layout.
+layout).  ``"graded"`` (decision 90): the polar rings with the near wake's ring particles replaced
+by a relaxed point cloud whose spacing grows linearly, by ``wake_grading``, with the distance from
+the wake axis between the body and ``wake_length`` D, where it is ``wake_spacing`` D (smooth
+grading keeps the neighbour rows near the polar layout's).  The body's quadrature keeps
+``n_theta`` points on every layout.
 
 Body.  No-slip adiabatic wall by the boundary integral of thesis eq. 4.24
 (:mod:`mlsph_jax.wall_integral`, ``boundary_integral``; SPEC §5.8): a
@@ -294,7 +298,9 @@ CYLINDER_KEYS: dict[str, Key] = {
                   doc="particles around the body (docs/architecture.md decision 72): \"polar\" body-fitted rings "
                       "with geometric growth (decisions 58, 65); \"cartesian\" a uniform square lattice of spacing "
                       "case.lattice_ratio x perimeter / case.n_theta with the body cut out; \"blend\" the polar "
-                      "rings out to case.blend_radius and the lattice of the last ring's spacing beyond; lattice "
+                      "rings out to case.blend_radius and the lattice of the last ring's spacing beyond; \"graded\" "
+                      "the polar rings with a wake cloud graded from case.wake_spacing on the wake axis (decision 90); "
+                      "lattice and cloud "
                       "volumes are Voronoi cells clipped to the fluid; shape derivatives need \"polar\""),
     "lattice_ratio": Key(float, 1.0, minimum=0.0, exclusive_minimum=True,
                          doc="case.layout = \"cartesian\" only: lattice spacing h over the body's quadrature "
@@ -310,7 +316,7 @@ CYLINDER_KEYS: dict[str, Key] = {
     "wake_length": Key(float, 6.0, minimum=1.0,
                        doc="case.layout = \"graded\" only: x / D (from the body's centre) where the wake axis' "
                            "refinement ends; beyond it the spacing grows by case.wake_grading with the distance"),
-    "wake_grading": Key(float, 0.2, minimum=0.0, exclusive_minimum=True, maximum=0.3,
+    "wake_grading": Key(float, 0.16, minimum=0.0, exclusive_minimum=True, maximum=0.3,
                         doc="case.layout = \"graded\" only: growth of the wake spacing with the distance from the "
                             "refined axis segment (neighbouring spacings differ by ~1 + wake_grading); above the "
                             "rings' own growth sqrt(V) / r (0.126 at n_theta 48), so the refined region ends"),
