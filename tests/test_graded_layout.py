@@ -136,7 +136,7 @@ def test_uniform_stream_stays_uniform_on_the_graded_layout():
 @pytest.mark.parametrize("overrides, words", [
     ((*GRADED, "case.wake_grading=0.15"), ["case.wake_grading=0.15", "never ends", "0.1864 < case.wake_grading"]),
     ((*GRADED[:2], "case.wake_length=4.0", GRADED[3]), ["case.wake_length=4", "last two fluid rings"]),
-    ((*GRADED[:1], "case.wake_spacing=0.05"), ["case.wake_spacing=0.05", "first ring", ">= 0.1023"]),
+    ((*GRADED, "case.wake_spacing=0.05"), ["case.wake_spacing=0.05", "first ring", ">= 0.1023"]),
     ((*GRADED, "case.body=\"ellipse\"", "case.aspect=1.5"), ["case.body='ellipse'", "case.body=\"circle\""]),
     (("case.wake_length=3.0",), ["case.wake_length=3", "\"graded\" only"]),
     ((*GRADED[:3], "case.wake_grading=0.5"), ["case.wake_grading", "0.5"]),
