@@ -14,6 +14,21 @@
   the same square lattice beyond, with h the particle spacing sqrt(V) of the outermost ring (so
   the ring spacing matches the lattice spacing at the blend radius); lattice points inside the
   outer ring's edge or closer than :data:`GAP` h to a ring particle are removed.
+* ``"graded"`` (decision 90): the polar rings with the ring particles of the near wake replaced by
+  a point cloud whose spacing grades smoothly.  Target spacing h_w(x) = D (``wake_spacing`` +
+  ``wake_grading`` d / D), d the distance from the wake-axis segment x in [R, ``wake_length`` D],
+  y = 0 (:func:`wake_target`); a ring particle (beyond the first :data:`KEEP_RINGS` rings and
+  inside the last two fluid rings) is replaced where h_w is below its ring's spacing sqrt(V) = c_p
+  r (:func:`_ring_spacing_ratio`).  ``wake_grading`` > c_p (0.126 at n_theta 48) closes that
+  region.  The cloud is sampled in the replaced cells with density 1 / h^2 (seeded thinning of a
+  fine hexagonal lattice) and relaxed by compressed springs on its Delaunay edges, rest lengths
+  proportional to the target spacing at their midpoints, the ring particles fixed (the force
+  balance of Persson & Strang's DistMesh, 2004, SIAM Review 46; our own implementation).  Because
+  the target is Lipschitz with constant ``wake_grading``, neighbouring spacings differ by ~1 +
+  ``wake_grading`` everywhere and the largest gather count (the global row capacity) stays near
+  the polar layout's, unlike a uniform strip with a jump at its edge (tag
+  ``tried/wake-strip-layout``, decision 86).  Voronoi volumes clipped to the body for the fluid,
+  sector areas for the polar frozen rings; circle only; no shape derivatives (as the lattices).
 
 Lattice layouts: beyond ``r_far`` the lattice continues as FROZEN far-field particles
 (:class:`~mlsph_jax.state.Kind`) out to the support radius of the outermost fluid particle plus
@@ -438,3 +453,211 @@ def _mapped_circle(r, r0, n, centre, semi_axes, angle):
 BODY_LAYOUTS.register("polar", Polar())
 BODY_LAYOUTS.register("cartesian", Cartesian())
 BODY_LAYOUTS.register("blend", Blend())
+
+
+# --- the graded wake layout (decision 90) ------------------------------------------------------
+
+#: The graded layout keeps the polar rings 0 .. KEEP_RINGS - 1 next to the body whatever the wake
+#: spacing (the wall terms and the body's quadrature see the polar layout there).
+KEEP_RINGS = 2
+#: Relaxation of the wake cloud: iterations, step (fraction of the bar force) and the bar
+#: over-length factor that keeps every bar in compression (so the points spread over the region).
+RELAX_STEPS, RELAX_DT, RELAX_FSCALE = 120, 0.2, 1.2
+#: Cloud points closer than CLOSE x the target spacing to another particle after the relaxation
+#: are dropped.
+CLOSE = 0.5
+#: The seed of the cloud's initial sampling (the layout is deterministic).
+CLOUD_SEED = 0
+
+
+def _ring_spacing_ratio(q: float, n_theta: int) -> float:
+    """sqrt(V) / r_c of a polar ring particle (rings r_k = R q^k, centres r_c = (r_k + r_k+1) / 2):
+    sqrt(2 (q - 1) dtheta / (q + 1)), the same on every ring."""
+    return math.sqrt(2.0 * (q - 1.0) * (2.0 * math.pi / n_theta) / (q + 1.0))
+
+
+def wake_target(case: Mapping, x: np.ndarray) -> np.ndarray:
+    """The graded layout's wake spacing h_w(x) = D (``wake_spacing`` + ``wake_grading`` d / D), d
+    the distance of x from the wake-axis segment from the body's rear (x = R) to x = ``wake_length``
+    D, y = 0: linear in the distance, so neighbouring spacings differ by the factor ~1 +
+    ``wake_grading`` at most."""
+    R = case["radius"]
+    D = 2.0 * R
+    px = np.clip(x[:, 0], R, case["wake_length"] * D)
+    d = np.hypot(x[:, 0] - px, x[:, 1])
+    return D * case["wake_spacing"] + case["wake_grading"] * d
+
+
+def _graded_cells(case: Mapping, names):
+    """The polar rings and the mask of the ring particles the wake cloud replaces: those (beyond
+    the first :data:`KEEP_RINGS` rings) whose wake spacing is below their ring spacing.
+    Returns ``(edges, q, x_polar, vol_polar, ring, ray, removed)`` of the fluid rings."""
+    R, n = case["radius"], case["n_theta"]
+    lay = polar_layout(R, n, case["r_far"], 0, names=names)
+    c_p = _ring_spacing_ratio(float(lay.edges[1] / lay.edges[0]), n)
+    r = np.hypot(lay.x[:, 0], lay.x[:, 1])
+    n_rings = len(lay.edges) - 1
+    removed = (lay.ring >= KEEP_RINGS) & (lay.ring < n_rings - 2) & (wake_target(case, lay.x) < c_p * r)
+    ray = np.tile(np.arange(n), len(lay.edges) - 1)
+    return lay.edges, float(lay.edges[1] / lay.edges[0]), lay.x, lay.vol, lay.ring, ray, removed
+
+
+def _in_cells(x, R, q, n_theta, removed_grid) -> np.ndarray:
+    """Whether each point lies in a removed polar cell (``removed_grid[ring, ray]``)."""
+    r = np.hypot(x[:, 0], x[:, 1])
+    k = np.floor(np.log(np.maximum(r, 1e-300) / R) / math.log(q)).astype(int)
+    j = np.floor(np.mod(np.arctan2(x[:, 1], x[:, 0]), 2.0 * math.pi) / (2.0 * math.pi / n_theta)).astype(int) % n_theta
+    ok = (k >= 0) & (k < removed_grid.shape[0])
+    out = np.zeros(len(x), bool)
+    out[ok] = removed_grid[k[ok], j[ok]]
+    return out
+
+
+def _cloud_spacing(case, x, c_p):
+    """Target spacing of the cloud: the finer of the wake spacing and the rings' spacing at r."""
+    return np.minimum(wake_target(case, x), c_p * np.hypot(x[:, 0], x[:, 1]))
+
+
+def _sample_cloud(case, edges, q, xr, ring, ray, removed) -> tuple[np.ndarray, np.ndarray]:
+    """Initial cloud points in the removed cells, density 1 / h^2 (expected count the integral of
+    dA / h^2), by thinning a fine hexagonal lattice with a seeded generator; and the removed-cell
+    grid."""
+    R, n = case["radius"], case["n_theta"]
+    c_p = _ring_spacing_ratio(q, n)
+    grid = np.zeros((len(edges) - 1, n), bool)
+    grid[ring[removed], ray[removed]] = True
+    kmax = int(ring[removed].max()) + 1
+    reach = float(edges[kmax])
+    sub = xr[removed]
+    lo, hi = sub.min(axis=0) - 2.0 * c_p * reach, sub.max(axis=0) + 2.0 * c_p * reach
+    lo, hi = np.maximum(lo, -reach), np.minimum(hi, reach)
+    a = float(_cloud_spacing(case, sub, c_p).min()) / 1.5
+    nx, ny = int((hi[0] - lo[0]) / a) + 1, int((hi[1] - lo[1]) / (a * math.sqrt(0.75))) + 1
+    ix, iy = np.meshgrid(np.arange(nx), np.arange(ny), indexing="xy")
+    cand = np.stack([lo[0] + a * (ix + 0.5 * (iy % 2)), lo[1] + a * math.sqrt(0.75) * iy], axis=-1).reshape(-1, 2)
+    cand = cand[_in_cells(cand, R, q, n, grid)]
+    p_keep = math.sqrt(0.75) * a * a / _cloud_spacing(case, cand, c_p) ** 2
+    rng = np.random.default_rng(CLOUD_SEED)
+    return cand[rng.random(len(cand)) < p_keep], grid
+
+
+def _relax_cloud(case, moving, fixed, q, grid) -> np.ndarray:
+    """Spread the cloud points by a bar-force relaxation over the Delaunay triangulation of cloud
+    and ring points (a compressed spring on every edge with a cloud end, rest length proportional
+    to the target spacing at its midpoint; ring points fixed; a cloud point that would leave the
+    removed cells stays where it was)."""
+    from scipy.spatial import Delaunay
+
+    R, n = case["radius"], case["n_theta"]
+    c_p = _ring_spacing_ratio(q, n)
+    nm = len(moving)
+    p = np.concatenate([moving, fixed])
+    for _ in range(RELAX_STEPS):
+        tri = Delaunay(p).simplices
+        e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+        e = np.unique(np.sort(e, axis=1), axis=0)
+        e = e[(e[:, 0] < nm) | (e[:, 1] < nm)]
+        v = p[e[:, 1]] - p[e[:, 0]]
+        L = np.hypot(v[:, 0], v[:, 1])
+        hb = _cloud_spacing(case, 0.5 * (p[e[:, 0]] + p[e[:, 1]]), c_p)
+        L0 = hb * RELAX_FSCALE * math.sqrt(np.sum(L * L) / np.sum(hb * hb))
+        f = (np.maximum(L0 - L, 0.0) / L)[:, None] * v
+        force = np.zeros_like(p)
+        np.add.at(force, e[:, 0], -f)
+        np.add.at(force, e[:, 1], f)
+        trial = p[:nm] + RELAX_DT * force[:nm]
+        ok = _in_cells(trial, R, q, n, grid)
+        p[:nm] = np.where(ok[:, None], trial, p[:nm])
+    return p[:nm]
+
+
+class Graded:
+    """The polar layout with the ring particles of the wake replaced by a cloud whose spacing grades
+    smoothly from ``wake_spacing`` D on the wake axis (decision 90), Voronoi volumes."""
+
+    @staticmethod
+    def check(case: Mapping, support: Callable[[float], float]) -> list[str]:
+        problems = []
+        if case["body"] != "circle":
+            problems.append(f"invalid case.body={case['body']!r} with case.layout=\"graded\": the wake cloud is "
+                            "placed around a circle's rings; allowed: case.body=\"circle\" (or another layout)")
+            return problems
+        edges, q = polar_ring_edges(case["radius"], case["n_theta"], case["r_far"],
+                                    names=("case.radius", "case.n_theta", "case.r_far"))
+        c_p = _ring_spacing_ratio(q, case["n_theta"])
+        if case["wake_grading"] <= c_p:
+            problems.append(f"invalid case.wake_grading={case['wake_grading']!r} with case.n_theta="
+                            f"{case['n_theta']}: the wake spacing must grow faster with the distance from the "
+                            f"axis than the rings' spacing grows with r ({c_p:.4g}), or the refined region never "
+                            f"ends; allowed: {c_p:.4g} < case.wake_grading <= 0.3")
+            return problems
+        D = 2.0 * case["radius"]
+        # the refined region ends where h_w = c_p r, farthest on the axis beyond the segment's end,
+        # at x* = (g L - h0) / (g - c_p); it must stay inside the last two fluid rings (which the
+        # frozen rings' support reaches)
+        g, L, h0 = case["wake_grading"], case["wake_length"] * D, case["wake_spacing"] * D
+        x_end = (g * L - h0) / (g - c_p)
+        limit = edges[-3]
+        if x_end >= limit:
+            problems.append(f"invalid case.wake_length={case['wake_length']!r} with case.wake_grading={g!r}, "
+                            f"case.wake_spacing={case['wake_spacing']!r} and case.r_far={case['r_far']!r}: the "
+                            f"refined wake reaches r = {x_end:.4g}, into the last two fluid rings next to the far "
+                            f"field (r >= {limit:.4g}); allowed: a shorter case.wake_length, a larger "
+                            "case.wake_grading or case.r_far")
+        first = case["radius"] * c_p * (1.0 + q) / 2.0
+        if h0 < first:
+            problems.append(f"invalid case.wake_spacing={case['wake_spacing']!r}: finer than the first ring's "
+                            f"spacing ({first / D:.4g} D), the cloud would be finer than the rings next to the "
+                            f"body; allowed: case.wake_spacing >= {first / D:.4g}")
+        return problems
+
+    @staticmethod
+    def build(case: Mapping, body, params, support, names) -> BodyLayout:
+        R, n = case["radius"], case["n_theta"]
+        edges, q, xr, vr, ring, ray, removed = _graded_cells(case, names)
+        cloud0, grid = _sample_cloud(case, edges, q, xr, ring, ray, removed)
+        kept = xr[~removed]
+        near = np.hypot(kept[:, 0], kept[:, 1]) < edges[int(ring[removed].max()) + 1] * q ** 2
+        cloud = _relax_cloud(case, cloud0, kept[near], q, grid)
+        c_p = _ring_spacing_ratio(q, n)
+        # drop cloud points too close to another particle (the relaxation leaves a few at the
+        # region's edge), the closest first
+        hc = _cloud_spacing(case, cloud, c_p)
+        keep = cKDTree(kept).query(cloud)[0] >= CLOSE * hc
+        for i, j in sorted(cKDTree(cloud).query_pairs(CLOSE * float(hc.max()))):
+            if keep[i] and keep[j] and np.hypot(*(cloud[i] - cloud[j])) < CLOSE * min(hc[i], hc[j]):
+                keep[j if hc[j] >= hc[i] else i] = False
+        fluid = np.concatenate([kept, cloud[keep]])
+        n_far = far_rings(case, support, names)
+        lay_all = polar_layout(R, n, case["r_far"], n_far, names=names)
+        n_fluid_rings = len(edges) - 1
+        frozen = lay_all.ring >= n_fluid_rings
+        pts = np.concatenate([fluid, lay_all.x[frozen]])
+        poly = body_polygon(body, params)
+        vf = voronoi_volumes(pts, len(fluid), poly)
+        worst = spacing_ratio(body, params, fluid, vf)
+        if worst > 1.0 + 1e-9:
+            raise InputError(f"invalid case.n_theta={n!r} with case.layout=\"graded\": the body's quadrature pieces "
+                             f"are up to {worst:.3g} spacings sqrt(V) of the nearest particle long; allowed: at most "
+                             "1 spacing, a larger case.n_theta or case.layout=\"polar\"")
+        vol = np.concatenate([vf, lay_all.vol[frozen]])
+        kind = np.concatenate([np.full(len(fluid), int(Kind.FLUID)), np.full(int(frozen.sum()), int(Kind.FROZEN))])
+        h = 2.0 * R * case["wake_spacing"]
+        return BodyLayout(pts, vol, kind, h, _fixed_positions(pts, vol, body, "graded", params))
+
+    @staticmethod
+    def count(case: Mapping, support: Callable[[float], float]) -> tuple[int, tuple[str, ...]]:
+        """The kept ring particles, the frozen rings and the cloud's expected count (the integral
+        of dA / h^2 over the replaced cells, by their sector areas and the spacing at their
+        centres: within a few per cent)."""
+        names = ("case.radius", "case.n_theta", "case.r_far")
+        edges, q, xr, vr, ring, ray, removed = _graded_cells(case, names)
+        c_p = _ring_spacing_ratio(q, case["n_theta"])
+        cloud = float(np.sum(vr[removed] / _cloud_spacing(case, xr[removed], c_p) ** 2))
+        frozen = case["n_theta"] * far_rings(case, support, names)
+        return (int((~removed).sum()) + round(cloud) + frozen,
+                ("case.layout", "case.r_far", "case.n_theta", "case.radius", "case.wake_spacing",
+                 "case.wake_length", "case.wake_grading"))
+
+
+BODY_LAYOUTS.register("graded", Graded())

@@ -15,7 +15,11 @@ a uniform square lattice of spacing ``lattice_ratio`` x perimeter / ``n_theta`` 
 the polar rings out to ``blend_radius`` with the lattice of the last ring's spacing beyond; their
 volumes are Voronoi cells clipped to the fluid, their far field is the lattice continued as frozen
 particles, and they do not follow the body's shape parameters (shape derivatives need the polar
-layout).  The body's quadrature keeps ``n_theta`` points on every layout.
+layout).  ``"graded"`` (decision 90): the polar rings with the near wake's ring particles replaced
+by a relaxed point cloud whose spacing grows linearly, by ``wake_grading``, with the distance from
+the wake axis between the body and ``wake_length`` D, where it is ``wake_spacing`` D (smooth
+grading keeps the neighbour rows near the polar layout's).  The body's quadrature keeps
+``n_theta`` points on every layout.
 
 Body.  No-slip adiabatic wall by the boundary integral of thesis eq. 4.24
 (:mod:`mlsph_jax.wall_integral`, ``boundary_integral``; SPEC §5.8): a
@@ -265,7 +269,8 @@ def layout_problems(cfg: Mapping) -> list[str]:
     """The layout's own checks (:data:`~mlsph_jax.cases.body_layouts.BODY_LAYOUTS`), and no
     lattice key set for a layout that does not use it (nothing silently ignored)."""
     c = cfg["case"]
-    used = {"lattice_ratio": ("cartesian",), "blend_radius": ("blend",)}
+    used = {"lattice_ratio": ("cartesian",), "blend_radius": ("blend",), "wake_spacing": ("graded",),
+            "wake_length": ("graded",), "wake_grading": ("graded",)}
     problems = [f"invalid case.{k}={show(c[k])} with case.layout={show(c['layout'])}: it is used by case.layout="
                 f"{' / '.join(map(show, lays))} only; allowed: the default {show(CYLINDER_KEYS[k].default)} or "
                 f"case.layout={show(lays[0])}"
@@ -293,7 +298,9 @@ CYLINDER_KEYS: dict[str, Key] = {
                   doc="particles around the body (docs/architecture.md decision 72): \"polar\" body-fitted rings "
                       "with geometric growth (decisions 58, 65); \"cartesian\" a uniform square lattice of spacing "
                       "case.lattice_ratio x perimeter / case.n_theta with the body cut out; \"blend\" the polar "
-                      "rings out to case.blend_radius and the lattice of the last ring's spacing beyond; lattice "
+                      "rings out to case.blend_radius and the lattice of the last ring's spacing beyond; \"graded\" "
+                      "the polar rings with a wake cloud graded from case.wake_spacing on the wake axis (decision 90); "
+                      "lattice and cloud "
                       "volumes are Voronoi cells clipped to the fluid; shape derivatives need \"polar\""),
     "lattice_ratio": Key(float, 1.0, minimum=0.0, exclusive_minimum=True,
                          doc="case.layout = \"cartesian\" only: lattice spacing h over the body's quadrature "
@@ -303,6 +310,16 @@ CYLINDER_KEYS: dict[str, Key] = {
                         doc="case.layout = \"blend\" only: outer radius of the polar rings (the lattice beyond has "
                             "the last ring's spacing sqrt(V)); between the body's second ring and case.r_far less "
                             "two lattice spacings"),
+    "wake_spacing": Key(float, 0.1, minimum=0.0, exclusive_minimum=True,
+                        doc="case.layout = \"graded\" only: particle spacing sqrt(V) / D on the wake axis from the "
+                            "body's rear to case.wake_length (decision 90); at least the first ring's spacing"),
+    "wake_length": Key(float, 6.0, minimum=1.0,
+                       doc="case.layout = \"graded\" only: x / D (from the body's centre) where the wake axis' "
+                           "refinement ends; beyond it the spacing grows by case.wake_grading with the distance"),
+    "wake_grading": Key(float, 0.16, minimum=0.0, exclusive_minimum=True, maximum=0.3,
+                        doc="case.layout = \"graded\" only: growth of the wake spacing with the distance from the "
+                            "refined axis segment (neighbouring spacings differ by ~1 + wake_grading); above the "
+                            "rings' own growth sqrt(V) / r (0.126 at n_theta 48), so the refined region ends"),
     "body": Key(str, "circle", choices=BODIES,
                 doc="the body: a circle of case.radius, or an ellipse of the same area (equal-area radius "
                     "case.radius, aspect ratio case.aspect, angle of attack case.alpha) on the conformally "
