@@ -39,7 +39,7 @@ Implementation (performance on CPU).  Everything per pair is written on [rows, K
    reduction, which XLA:CPU fuses into a single loop.  Two versions of this sweep sit behind a
    ``lax.cond``: the general one, with the MOOD fallback to the first-order states U_i, U_j of
    pairs with min(ppd_i, ppd_j) = 0, and, when no particle is demoted, one without those states
-   (no gathers of U_j and ppd_j, no selects): the same values, bitwise (decision 89).
+   (no gathers of U_j and ppd_j, no selects): the same values up to XLA's fused multiply-add contraction (decision 89).
 
 The results equal the straightforward array formulation to round-off
 (tests/test_rhs_equivalence_perf.py); experiments/bench_rhs.py measures the throughput.
@@ -276,7 +276,7 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme, bo
         # MOOD demotes pairs to first order only where some ppd is 0; when none is (the common
         # case) the sweep that skips the first-order states F_j (nv gathers per pair), the
         # j-side ppd and the state selects runs instead: where(True, a, b) is a, so the values
-        # are bitwise those of the general sweep (docs/performance.md, decision 89).
+        # are those of the general sweep up to FMA contraction (docs/performance.md, decision 89).
         sums = jax.lax.cond(jnp.min(ppd) > 0, lambda: sweep(False), lambda: sweep(True))
     else:
         sums = sweep(True)

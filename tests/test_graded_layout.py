@@ -122,6 +122,7 @@ def test_row_capacity_within_one_and_a_half_times_the_polar_layouts():
     assert caps["graded"] <= 1.5 * caps["polar"], caps
 
 
+@pytest.mark.slow   # 16-44 s: three right-hand sides compiled on the cloud (the polar check runs by default)
 def test_uniform_stream_stays_uniform_on_the_graded_layout():
     """A uniform free stream with the frozen far field and no body has a zero right-hand side to
     round-off (bound 2e-11 of max |q|, as on the blend), frozen particles get no update; with the
@@ -140,6 +141,8 @@ def test_uniform_stream_stays_uniform_on_the_graded_layout():
     ((*GRADED, "case.body=\"ellipse\"", "case.aspect=1.5"), ["case.body='ellipse'", "case.body=\"circle\""]),
     (("case.wake_length=3.0",), ["case.wake_length=3", "\"graded\" only"]),
     ((*GRADED[:3], "case.wake_grading=0.5"), ["case.wake_grading", "0.5"]),
+    (("case.layout=\"graded\"", "case.wake_spacing=0.5", "case.wake_length=1.0", "case.wake_grading=0.3"),
+     ["case.wake_spacing=0.5", "no ring particle", "case.layout=\"polar\""]),
 ])
 def test_bad_graded_layouts_name_the_key(overrides, words):
     with pytest.raises(ConfigError) as e:

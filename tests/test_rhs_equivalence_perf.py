@@ -398,6 +398,20 @@ def test_rhs_equals_reference(base, change):
         np.testing.assert_array_equal(Fp[mask], rev_side[mask])
 
 
+@pytest.mark.parametrize("change", [{}, dict(eos="tait", frame="lagrangian")], ids=str)
+def test_rhs_without_demoted_particles_equals_reference(change):
+    """Every particle high order (no MOOD demotion): the right-hand side takes the pair sweep
+    without the first-order fallback (decision 89's ``lax.cond``), which must give the reference's
+    values like the general sweep does (the test above demotes every 11th particle)."""
+    scheme = dataclasses.replace(MLS2, **change)
+    particles, params, nl = setup(scheme, eos=scheme.eos)
+    particles = dataclasses.replace(particles, ppd=jnp.full_like(particles.ppd, 3))
+    geom = jax.jit(lambda p, nl: geometry(p.x, p.vol, nl, scheme, DOMAIN))(particles, nl)
+    new = jax.jit(lambda p, prm, g: rhs(p, prm, g, scheme))(particles, params, geom)
+    ref = jax.jit(lambda p, prm, g: ref_rhs(p, prm, g, scheme))(particles, params, geom)
+    close(new[2], ref[2], scale=float(jnp.abs(ref[3]).max()))
+
+
 def test_rhs_parameter_gradient_equals_reference():
     """Reverse mode through the blocked passes: d/d gamma of a scalar of the right-hand side."""
     scheme = MLS2
