@@ -582,8 +582,8 @@ class Graded:
             problems.append(f"invalid case.body={case['body']!r} with case.layout=\"graded\": the wake cloud is "
                             "placed around a circle's rings; allowed: case.body=\"circle\" (or another layout)")
             return problems
-        edges, q = polar_ring_edges(case["radius"], case["n_theta"], case["r_far"],
-                                    names=("case.radius", "case.n_theta", "case.r_far"))
+        names = ("case.radius", "case.n_theta", "case.r_far")
+        edges, q = polar_ring_edges(case["radius"], case["n_theta"], case["r_far"], names=names)
         c_p = _ring_spacing_ratio(q, case["n_theta"])
         if case["wake_grading"] <= c_p:
             problems.append(f"invalid case.wake_grading={case['wake_grading']!r} with case.n_theta="
@@ -609,13 +609,11 @@ class Graded:
             problems.append(f"invalid case.wake_spacing={case['wake_spacing']!r}: finer than the first ring's "
                             f"spacing ({first / D:.4g} D), the cloud would be finer than the rings next to the "
                             f"body; allowed: case.wake_spacing >= {first / D:.4g}")
-        if not problems:
-            names = ("case.radius", "case.n_theta", "case.r_far")
-            if not _graded_cells(case, names)[-1].any():
-                problems.append(f"invalid case.wake_spacing={case['wake_spacing']!r} with case.wake_length="
-                                f"{case['wake_length']!r} and case.wake_grading={g!r}: no ring particle is coarser "
-                                "than the wake spacing there, so the layout would be the polar one; allowed: a "
-                                "finer case.wake_spacing or a longer case.wake_length (or case.layout=\"polar\")")
+        if not problems and not _graded_cells(case, names)[-1].any():
+            problems.append(f"invalid case.wake_spacing={case['wake_spacing']!r} with case.wake_length="
+                            f"{case['wake_length']!r} and case.wake_grading={g!r}: no ring particle is coarser "
+                            "than the wake spacing there, so the layout would be the polar one; allowed: a "
+                            "finer case.wake_spacing or a longer case.wake_length (or case.layout=\"polar\")")
         return problems
 
     @staticmethod
