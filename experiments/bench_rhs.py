@@ -11,7 +11,9 @@ each with every numerical flux of ``--flux`` (default ``rusanov``; e.g. ``--flux
 hllc_lm hllc_zha``; ``hllc_lm`` gets ``scheme.reference_mach`` from ``--reference-mach``) and every
 low-Mach reconstruction of ``--low-mach`` (default ``none``; e.g. ``--low-mach none thornber``).
 
-For every scheme and size the neighbour list is built once (not timed); then
+For every scheme and size the neighbour list is built once (not timed), sized as the driver
+sizes it (:func:`mlsph_jax.run.plan_neighbors`, ``scheme.neighbor_headroom`` 1.3: Eulerian
+particles get their largest count as capacity since decision 91, moving ones the headroom); then
 
 * ``rhs``:       ``rhs(particles, params, geom, scheme)`` with a precomputed Geometry (what an
   Eulerian run evaluates per Runge-Kutta stage);
@@ -51,9 +53,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import mlsph_jax
-from mlsph_jax import neighbors
 from mlsph_jax.eos import get_eos, to_conservative
 from mlsph_jax.rhs import geometry, rhs
+from mlsph_jax.run import plan_neighbors
 from mlsph_jax.scheme import Scheme
 from mlsph_jax.state import Domain, Params, make_particles
 
@@ -113,8 +115,7 @@ def run(name: str, n_target: int, repeat: int, frame: str, seed: int, flux: str 
     vol = np.full(n, dx**dim)
     particles = make_particles(x, vol, smooth_state(x, params))
     domain = Domain((0.0,) * dim, (1.0,) * dim, (True,) * dim)
-    h = scheme.beta * vol ** (1.0 / dim)
-    _, nl = neighbors.allocate(x, h, domain, support=scheme.support)
+    _, nl = plan_neighbors(particles, scheme, domain, headroom=1.3, min_moving_headroom=True)
     assert not bool(nl.overflow)
 
     def geom_fn(p, nl):
@@ -183,7 +184,7 @@ def baseline_rhs(pkg, name: str, n_target: int, seed: int, frame: str, dim: int 
     package or a baseline copy of it, :func:`bench_moving_frames.baseline_package`)."""
     import importlib
 
-    mod = {m: importlib.import_module(f"{pkg.__name__}.{m}") for m in ("neighbors", "rhs", "scheme", "state", "eos")}
+    mod = {m: importlib.import_module(f"{pkg.__name__}.{m}") for m in ("run", "rhs", "scheme", "state", "eos")}
     scheme = mod["scheme"].Scheme(**SCHEMES[name], frame=frame)
     x, dx = layout(n_target, np.random.default_rng(seed), dim=dim)
     n = x.shape[0]
@@ -191,7 +192,7 @@ def baseline_rhs(pkg, name: str, n_target: int, seed: int, frame: str, dim: int 
     vol = np.full(n, dx**dim)
     particles = mod["state"].make_particles(x, vol, smooth_state(x, params))
     domain = mod["state"].Domain((0.0,) * dim, (1.0,) * dim, (True,) * dim)
-    _, nl = mod["neighbors"].allocate(x, scheme.beta * vol ** (1.0 / dim), domain, support=scheme.support)
+    _, nl = mod["run"].plan_neighbors(particles, scheme, domain, headroom=1.3, min_moving_headroom=True)
     geom = jax.jit(lambda p, nl: mod["rhs"].geometry(p.x, p.vol, nl, scheme, domain))(particles, nl)
     c = jax.jit(lambda p, prm, g: mod["rhs"].rhs(p, prm, g, scheme)).lower(particles, params, geom).compile()
     return c, (particles, params, geom), n, int(nl.idx.shape[1])
@@ -223,7 +224,8 @@ def ab_rounds(baseline: str, name: str, n_target: int, rounds: int, seed: int, f
             cpu[k].append(time.process_time() - c0)
     load1 = os.getloadavg()
     n, cap = calls["this"][2], calls["this"][3]
-    res = dict(baseline=baseline, scheme=name, n=n, capacity=cap, rounds=rounds, load_average=[load0, load1],
+    res = dict(baseline=baseline, scheme=name, n=n, capacity=cap, base_capacity=calls["base"][3],
+               rounds=rounds, load_average=[load0, load1],
                max_abs_diff_dq=float(np.max(np.abs(out["this"] - out["base"]))))
     for k in calls:
         res[k] = dict(wall_best_s=min(wall[k]), wall_median_s=float(np.median(wall[k])),
@@ -267,7 +269,8 @@ def main(argv=None) -> None:
                 (l0, l1) = r["load_average"]
                 for k in ("base", "this"):
                     v = r[k]
-                    print(f"{name} N={r['n']} K={r['capacity']} {k:>4s}: wall best {1e3 * v['wall_best_s']:7.1f} ms "
+                    cap = r["base_capacity" if k == "base" else "capacity"]
+                    print(f"{name} N={r['n']} K={cap} {k:>4s}: wall best {1e3 * v['wall_best_s']:7.1f} ms "
                           f"(median {1e3 * v['wall_median_s']:7.1f}), CPU best {1e3 * v['cpu_best_s']:7.1f} ms "
                           f"(median {1e3 * v['cpu_median_s']:7.1f}), {v['particles_per_s_best']:.3e} particle "
                           "evaluations/s", flush=True)

@@ -61,16 +61,27 @@ def moving_min_headroom(dim: int) -> float:
     return 2.0 if dim == 1 else 1.3
 
 
+#: Capacity headroom of fixed (Eulerian) particles: none.  Their list is built once from the
+#: positions and volumes that never change, so its largest count is exactly what every stage needs
+#: (decision 91: K = 31 instead of 41 slots at N = 4e4; every padding slot costs every pass over
+#: the stencil).  A list rebuilt on the host from other particles (a restart, a user edit) still
+#: regrows (:meth:`RunSetup.host_geometry`).
+FIXED_HEADROOM = 1.0
+
+
 def plan_neighbors(particles: Particles, scheme, domain: Domain, *, headroom: float,
                    min_moving_headroom: bool | float = False) -> tuple[nb.NeighborSpec, nb.NeighborList]:
     """``(spec, list)`` sized from ``particles`` (host side): the cell size of
-    :func:`moving_cell_size` and capacities ``ceil(max count * headroom)``.  With
+    :func:`moving_cell_size` and capacities ``ceil(max count * headroom)``.  ``headroom`` applies
+    to moving particles only (fixed ones get :data:`FIXED_HEADROOM`, their largest count).  With
     ``min_moving_headroom`` (the driver, which can regrow but recompiles each time) the headroom
     of moving particles is at least :func:`moving_min_headroom` (``True``) or the number given
     (``scheme.moving_neighbor_headroom``); a differentiated run (fixed capacity) uses
     ``headroom`` as given."""
     h = smoothing_lengths(particles, scheme)
-    if scheme.moving and min_moving_headroom is not False:
+    if not scheme.moving:
+        headroom = FIXED_HEADROOM
+    elif min_moving_headroom is not False:
         floor = (moving_min_headroom(particles.dim) if isinstance(min_moving_headroom, bool)
                  else float(min_moving_headroom))
         headroom = max(headroom, floor)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -383,6 +384,36 @@ def test_a_moving_headroom_below_one_is_refused():
         Simulation(build_problem(cfg), moving_headroom=0.5)
 
 
+def test_eulerian_lists_get_their_largest_count_and_the_same_right_hand_side():
+    """Decision 91 (issue 15): fixed (Eulerian) particles never change their list, so the run
+    layer sizes its capacity to the largest neighbour count, ignoring the headroom that moving
+    particles need (K = 31 instead of 41 at N = 4e4; moving particles keep theirs, see the test
+    below).  The right-hand side on that tight list
+    equals the one on a list padded to the old headroom 1.3 (padding slots are masked; measured
+    bitwise), and one slot fewer overflows (the capacity is the smallest that holds the list)."""
+    n = 16
+    pb, x, vol, _ = _uniform_problem(n, ["scheme.frame=eulerian", "scheme.reconstruction_degree=2"])
+    rng = np.random.default_rng(5)
+    u = 0.5 * np.stack([np.sin(x[:, 1]), np.cos(x[:, 0])], 1) + 0.05 * rng.uniform(-1, 1, x.shape)
+    U = to_conservative(jnp.asarray(1.0 + 0.01 * np.cos(x[:, 0])), jnp.asarray(u), None, get_eos("tait"), pb.params)
+    p = pb.particles.replace(q=U * jnp.asarray(vol)[:, None])
+    pb.particles = p
+    sch = pb.scheme
+    setup = setup_run(pb, headroom=1.3)
+    count = int(np.max(np.asarray(setup.nl.count)))
+    assert setup.nspec.capacity == count and not bool(setup.nl.overflow), (setup.nspec.capacity, count)
+    h = sch.beta * np.sqrt(vol)
+    padded = nb.update(x, h, dataclasses.replace(setup.nspec, capacity=int(np.ceil(1.3 * count))))
+    assert padded.idx.shape[1] > count
+    tight = nb.update(x, h, dataclasses.replace(setup.nspec, capacity=count - 1))
+    assert bool(tight.overflow)
+    f = jax.jit(lambda nl: rhs(p, pb.params, geometry(p.x, p.vol, nl, sch, pb.domain), sch))
+    out = [f(nl) for nl in (setup.nl, padded)]
+    for a, b in zip(out[0], out[1], strict=True):
+        b = np.asarray(b)
+        np.testing.assert_allclose(np.asarray(a), b, rtol=0, atol=1e-14 * max(np.abs(b).max(), 1e-300))
+
+
 @pytest.mark.slow   # 23 s; CI time: the Verlet-skin test runs the minimal moving headroom in the default suite
 def test_higher_moving_headroom_pads_more_slots_and_keeps_the_trajectory():
     """``scheme.moving_neighbor_headroom`` (issue 15): a headroom of 1.6 instead of the driver's
@@ -404,17 +435,19 @@ def test_higher_moving_headroom_pads_more_slots_and_keeps_the_trajectory():
 
 
 def test_moving_frames_get_the_eulerian_capacity_and_regrow_instead_of_dropping():
-    """Decision 84 (issue 15): in 2D the driver sizes a moving run's list like an Eulerian one
-    (``scheme.neighbor_headroom`` 1.3, no extra moving headroom: every padding slot costs every
+    """Decision 84 (issue 15): in 2D the driver sizes a moving run's list with
+    ``scheme.neighbor_headroom`` 1.3 (no extra moving headroom: every padding slot costs every
     pass over the stencil of every stage).  A moving run whose neighbour counts outgrow the
     capacity stops the chunk with the row-overflow bit, regrows from the counts it measured and
     ends where the run at the default capacity ends (no neighbour dropped)."""
     over = ["case.n=12", "time.t_end=0.02", "scheme.frame=lagrangian", "output.plots=false",
             "output.progress=false"]
     pb = build_problem(config.load(CONFIG, over))
-    eul = setup_run(build_problem(config.load(CONFIG, [*over, "scheme.frame=eulerian"])), headroom=1.3)
+    p0 = pb.particles
+    eul = nb.plan(np.asarray(p0.x), pb.scheme.beta * np.sqrt(np.asarray(p0.vol)), pb.domain,
+                  support=pb.scheme.support, headroom=1.3)
     sim = Simulation(pb)
-    assert sim.nspec.capacity == eul.nspec.capacity, (sim.nspec.capacity, eul.nspec.capacity)
+    assert sim.nspec.capacity == eul.capacity, (sim.nspec.capacity, eul.capacity)
     ref = sim.run(progress=False)
     assert not sim.regrowth_log
     tight = Simulation(pb)

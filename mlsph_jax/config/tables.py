@@ -176,8 +176,9 @@ SCHEME_KEYS: dict[str, Key] = {
     "mood_max_iter": Key(int, 8, minimum=1,
                          doc="bound on the MOOD detect-and-demote iterations per Runge-Kutta stage"),
     "neighbor_headroom": Key(float, 1.3, minimum=1.0,
-                             doc="neighbour-list capacity as a multiple of the largest initial "
-                                 "neighbour count"),
+                             doc="moving particles: neighbour-list capacity as a multiple of the largest "
+                                 "initial neighbour count (fixed, Eulerian particles get their largest count: "
+                                 "their list never changes, decision 91)"),
     "moving_neighbor_headroom": Key(float, 0.0, minimum=0.0,
                                     doc="moving frames, chunked driver: the smallest neighbour-list headroom "
                                         "(max of this and neighbor_headroom); 0 = automatic (2.0 in 1D, 1.3 "
