@@ -150,7 +150,8 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
     :func:`default_steps`) is refused with an :class:`~mlsph_jax.errors.InputError` if
     ``t_end / n_steps`` exceeds the CFL limit of ``problem.particles``, and a step whose state's
     limit drops below ``dt`` fails with ``Status.DT_ABOVE_CFL``.  ``headroom``: neighbour
-    capacity headroom; the capacity is fixed for the whole run (an overflow is a failure).
+    capacity headroom of moving particles (fixed, Eulerian particles get their largest count,
+    decision 91); the capacity is fixed for the whole run (an overflow is a failure).
     ``nspec``: a :class:`~mlsph_jax.neighbors.NeighborSpec` to use instead of sizing one
     (:func:`mlsph_jax.run.setup_run`).  ``remat_blocks``: rematerialise each row block of the
     stencil passes in reverse mode (:func:`mlsph_jax.approximation.block_remat`; same values,
