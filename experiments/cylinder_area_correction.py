@@ -26,6 +26,7 @@ import jax
 import numpy as np
 
 from mlsph_jax import config
+from mlsph_jax.area_correction import complete_rows
 from mlsph_jax.cases import build_problem
 from mlsph_jax.run import setup_run
 from mlsph_jax.state import Kind
@@ -77,6 +78,22 @@ def diagnose(n_theta: int, r_far: float, correction: str, extra=(), eigen: bool 
            "status_bits": overflow, "rings": []}
     print(f"{correction}: status bits {overflow} (0: CG converged); per ring: max |dA|/|A| over pairs, "
           "sign flips of A.dx, max closure |sum_j A_ij| h/V before -> after")
+    # per class of row (decision 92): fluid rows with a wall term, the other (complete) fluid rows,
+    # the frozen far field; the graded layout's cloud has no rings, so this is its summary
+    pb_rows = np.asarray(complete_rows(p, pb.boundary))
+    fluid = kind == Kind.FLUID
+    out["classes"] = {}
+    for name, m in (("wall rows", fluid & ~pb_rows), ("complete fluid rows", pb_rows), ("frozen", ~fluid)):
+        rel = np.where(pm[m], dA[m] / np.maximum(nA[m], 1e-300), 0.0)
+        row = {"rows": int(m.sum()), "median_rel_dA": float(np.median(rel[pm[m]])), "max_rel_dA": float(rel.max()),
+               "sign_flips": int(flipped[m].sum()), "closure_before_median": float(np.median(C0[m])),
+               "closure_before_max": float(C0[m].max()), "closure_after_max": float(C1[m].max())}
+        out["classes"][name] = row
+        print(f"{name:20s} {row['rows']:5d} rows: |dA|/|A| median {row['median_rel_dA']:.3g} max "
+              f"{row['max_rel_dA']:.3g}, flips {row['sign_flips']}, closure median {row['closure_before_median']:.3g} "
+              f"max {row['closure_before_max']:.3g} -> max {row['closure_after_max']:.3g}")
+    if len(radii) > 200:            # a cloud: no rings to print
+        radii = radii[:0]
     for k, rr in enumerate(radii):
         m = np.abs(r - rr) < 1e-5
         rel = np.where(pm[m], dA[m] / np.maximum(nA[m], 1e-300), 0.0)

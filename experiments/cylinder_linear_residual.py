@@ -70,6 +70,11 @@ def residuals(n_theta: int, r_far: float, rings: int = 5, extra=()) -> dict:
     inner = fluid & (r > 3.0) & (r < 0.8 * r_far)
     out["interior_with_correction"] = float(with_corr[inner].max())
     print(f"interior (3 < r < {0.8 * r_far:g}): largest relative residual {with_corr[inner].max():.2e}")
+    # every fluid row, also those next to the frozen rings and in the graded cloud (decision 92)
+    out["all_fluid_with_correction"] = float(with_corr[fluid].max())
+    out["status_bits"] = int(np.asarray(geom.overflow))
+    print(f"all {int(fluid.sum())} fluid rows: largest relative residual {with_corr[fluid].max():.2e} "
+          f"(geometry status bits {out['status_bits']}: 0 = area correction converged)")
     return out
 
 

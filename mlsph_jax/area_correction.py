@@ -33,6 +33,18 @@ has a boundary term that (*) lacks; imposing (*) there makes Delta A O(1) and, t
 the rows, spreads it over the whole layout (the cylinder diverged: docs/validation.md, cylinder).
 The closure is not a completeness test on irregular periodic layouts (perturbed Taylor-Green: median
 0.27 V/h, 614 of 625 rows above the threshold): use ``quadratic`` there.
+``linear_complete`` / ``quadratic_complete`` (decision 92) decide completeness from the structure,
+not from a threshold.  With partition of unity and linear reproduction of the MLS shape functions
+N_j, the continuous areas A_ij = int (N_i grad N_j - N_j grad N_i) dOmega satisfy
+sum_j A_ij (x) (x_j - x_i)/2 = V_i I - (1/2) int_dOmega N_i n (x) (x - x_i) dGamma (integration by
+parts, thesis eqs. 4.19-4.24), so (*) is the right identity exactly on the rows whose shape function
+does not reach the boundary of the particle region: the rows of :func:`complete_rows`, fluid
+particles in no wall point's stencil (N_i(x_b) = 0 for every quadrature point x_b; SPEC §5.8).  The
+wall rows' identity holds the wall integral: decision 60's first-moment correction (computed from
+the corrected areas) makes them exact.  Frozen far-field rings and mirror ghosts are not
+constrained (their rates are not used; the outermost frozen rings are truncated by the layout's
+edge, and the frozen reach is a full support, so no fluid row's support crosses it).  The caller
+passes the rows (``rhs.geometry(..., complete=...)``; the drivers do).
 ``apply`` returns ``(A, converged)``; a solve that stops at ``CG_MAXITER`` above its tolerance sets
 ``Status.AREA_CORRECTION_UNCONVERGED`` (through ``Geometry.overflow``), which stops the run loudly.
 """
@@ -45,7 +57,9 @@ import jax
 import jax.numpy as jnp
 
 from .approximation import basis
+from .errors import InputError
 from .registry import Registry
+from .state import Kind
 from .stencil import reverse_gather
 
 AREA_CORRECTIONS: Registry = Registry("scheme.area_correction", protocol=("apply",),
@@ -62,7 +76,10 @@ EPS = 1e-10
 class NoCorrection:
     """The thesis' one-point-quadrature area vectors, unchanged."""
 
-    def apply(self, A, dx, h, vol, jsafe, rev, pair_mask):
+    #: whether ``apply`` needs the structurally complete rows (:func:`complete_rows`)
+    structural = False
+
+    def apply(self, A, dx, h, vol, jsafe, rev, pair_mask, complete=None):
         return A, jnp.asarray(True)
 
 
@@ -84,6 +101,21 @@ def moment_defect(A, dx, h, vol, pair_mask, degree: int):
     return (lhs - vol[:, None, None] * jnp.swapaxes(G, 1, 2)) * (h / vol)[:, None, None]
 
 
+def complete_rows(p, boundary=None):
+    """Rows whose stencil is complete by construction (decision 92): fluid particles that are in no
+    wall point's stencil (no boundary-integral term, ``boundary.wall_rows``).  Frozen, ghost and
+    boundary particles are left out: their rates are not used (frozen rings are reset each stage,
+    ghosts regenerated), and the outermost of them are truncated by the layout's outer edge."""
+    rows = p.kind == Kind.FLUID
+    walls = getattr(boundary, "wall_rows", None)
+    return rows if walls is None else rows & ~walls(p)
+
+
+def wants_complete_rows(scheme) -> bool:
+    """Whether ``scheme``'s area correction needs :func:`complete_rows`."""
+    return bool(getattr(scheme.component("area_correction"), "structural", False))
+
+
 @dataclasses.dataclass(frozen=True)
 class ConsistentCorrection:
     """Smallest antisymmetric correction making the midpoint divergence exact to degree ``degree``
@@ -93,8 +125,11 @@ class ConsistentCorrection:
     #: ``None``: (*) on every row.  A number: (*) only on the rows whose closure
     #: |sum_j A_ij| h_i / V_i is at most this (complete stencils; decision 88)
     closure_tol: float | None = None
+    #: (*) only on the rows ``complete`` (:func:`complete_rows`: fluid rows without a wall term;
+    #: decision 92), which the caller must then pass
+    structural: bool = False
 
-    def apply(self, A, dx, h, vol, jsafe, rev, pair_mask):
+    def apply(self, A, dx, h, vol, jsafe, rev, pair_mask, complete=None):
         # solved in float64 whatever the state's precision (run.precision = "float32" keeps the
         # small moment differences, like the MLS moment matrices, in float64); A returned in its own
         out_dtype = A.dtype
@@ -103,7 +138,12 @@ class ConsistentCorrection:
         Q = jnp.where(pair_mask[..., None], Q, 0.0)
         target = vol[:, None, None] * jnp.swapaxes(G, 1, 2)          # [N, d, m-1]
         w = pair_mask[..., None].astype(A.dtype)
-        if self.closure_tol is None:
+        if self.structural:
+            if complete is None:
+                raise InputError("scheme.area_correction: the complete-stencil variants (decision 92) need the "
+                                 "particles' kinds and walls (rhs.geometry(..., complete=complete_rows(p, boundary)))")
+            rows = jnp.asarray(complete).astype(A.dtype)
+        elif self.closure_tol is None:
             rows = jnp.ones_like(vol)
         else:
             rows = (jnp.linalg.norm(jnp.sum(A, axis=1), axis=-1) * h / vol <= self.closure_tol).astype(A.dtype)
@@ -152,3 +192,6 @@ AREA_CORRECTIONS.register("quadratic", ConsistentCorrection(2))
 INTERIOR_CLOSURE = 0.05
 AREA_CORRECTIONS.register("linear_interior", ConsistentCorrection(1, INTERIOR_CLOSURE))
 AREA_CORRECTIONS.register("quadratic_interior", ConsistentCorrection(2, INTERIOR_CLOSURE))
+#: decision 92: (*) only on the structurally complete rows (fluid rows without a wall term)
+AREA_CORRECTIONS.register("linear_complete", ConsistentCorrection(1, structural=True))
+AREA_CORRECTIONS.register("quadratic_complete", ConsistentCorrection(2, structural=True))

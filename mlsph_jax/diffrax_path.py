@@ -62,7 +62,7 @@ import numpy as np
 
 from . import neighbors as nb
 from .errors import InputError, NeighborOverflowError, SimulationError
-from .integrate import cfl_dt, cfl_limiting_particle, make_stage_geometry
+from .integrate import cfl_dt, cfl_limiting_particle, complete_rows_if_needed, make_stage_geometry
 from .rhs import geometry, rhs
 from .run import check_fixed_step, default_steps, setup_run
 from .spatial import refuse_in
@@ -158,7 +158,7 @@ def _check_scheme(problem):
 
 def _vector_field(problem, nspec, check_overflow: bool):
     scheme = problem.scheme
-    stage_geometry = make_stage_geometry(scheme, problem.domain, nspec) if scheme.moving else None
+    stage_geometry = make_stage_geometry(scheme, problem.domain, nspec, problem.boundary) if scheme.moving else None
 
     def vf(t, y, args):
         del t  # the semi-discrete system is autonomous
@@ -188,7 +188,8 @@ def make_args(problem, params: Params, particles: Particles, nl0=None) -> dict:
     if not problem.scheme.moving:
         if nl0 is None:
             raise InputError("missing nl0 for an Eulerian scheme; allowed: the list from neighbor_setup")
-        geom = geometry(particles.x, particles.vol, nl0, problem.scheme, problem.domain)
+        geom = geometry(particles.x, particles.vol, nl0, problem.scheme, problem.domain,
+                        complete_rows_if_needed(particles, problem.scheme, problem.boundary))
     return {"params": params, "geom": geom, "kind": particles.kind, "ppd": particles.ppd}
 
 

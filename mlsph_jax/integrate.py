@@ -23,6 +23,7 @@ import jax.numpy as jnp
 
 from . import fallback, verlet
 from . import neighbors as nb
+from .area_correction import complete_rows, wants_complete_rows
 from .eos import get_eos, to_primitive
 from .kernels import safe_norm
 from .rhs import Geometry, frame_velocity, geometry, rhs
@@ -154,18 +155,25 @@ def _combine(a, y, b, e):
                      q=jnp.where(f1, a * y.q + b * e.q, y.q))
 
 
-def make_stage_geometry(scheme: Scheme, domain: Domain, nspec):
+def complete_rows_if_needed(p: Particles, scheme: Scheme, boundary):
+    """The complete rows of ``p`` if the area correction needs them (decision 92), else None."""
+    return complete_rows(p, boundary) if wants_complete_rows(scheme) else None
+
+
+def make_stage_geometry(scheme: Scheme, domain: Domain, nspec, boundary=None):
     """Function particles -> Geometry for moving particles (neighbour list rebuilt every stage)."""
 
     def stage_geometry(p: Particles) -> Geometry:
         h = scheme.beta * p.vol ** (1.0 / p.dim)
         nl = nb.update(p.x, h, nspec)
-        return with_overflow_bits(geometry(p.x, p.vol, nl, scheme, domain), nl)
+        complete = complete_rows_if_needed(p, scheme, boundary)
+        return with_overflow_bits(geometry(p.x, p.vol, nl, scheme, domain, complete), nl)
 
     return stage_geometry
 
 
-def make_verlet_stage_geometry(scheme: Scheme, domain: Domain, nspec, skin: float = verlet.VERLET_SKIN):
+def make_verlet_stage_geometry(scheme: Scheme, domain: Domain, nspec, skin: float = verlet.VERLET_SKIN,
+                               boundary=None):
     """``(init, stage_geometry)`` for moving particles with a Verlet-skin candidate list
     (:mod:`mlsph_jax.verlet`): ``init(p)`` the initial (stale) state, ``stage_geometry(p, v) ->
     (Geometry, v)`` restricts them to the stage's stencil (rebuilding them first when a particle
@@ -181,7 +189,8 @@ def make_verlet_stage_geometry(scheme: Scheme, domain: Domain, nspec, skin: floa
 
     def stage_geometry(p: Particles, v):
         nl, v = verlet.refresh(v, p.x, h_of(p), nspec, cspec, skin)
-        return with_overflow_bits(geometry(p.x, p.vol, nl, scheme, domain), nl), v
+        complete = complete_rows_if_needed(p, scheme, boundary)
+        return with_overflow_bits(geometry(p.x, p.vol, nl, scheme, domain, complete), nl), v
 
     return init, stage_geometry
 
@@ -405,10 +414,10 @@ def make_chunk(scheme: Scheme, domain: Domain, control: StepControl, n_steps: in
         if not scheme.moving:
             geom_fn = lambda p: static_geom  # noqa: E731
         elif skin > 0:
-            init, geom_fn = make_verlet_stage_geometry(scheme, domain, nspec, skin)
+            init, geom_fn = make_verlet_stage_geometry(scheme, domain, nspec, skin, boundary)
             cache = init(carry.particles)
         else:
-            geom_fn = make_stage_geometry(scheme, domain, nspec)
+            geom_fn = make_stage_geometry(scheme, domain, nspec, boundary)
 
         def one(cv, _):
             c, v = cv
@@ -482,7 +491,8 @@ def initial_carry(particles: Particles, t0: float = 0.0) -> Carry:
 
 
 @functools.partial(jax.jit, static_argnames=("scheme", "domain"))
-def static_geometry(particles: Particles, nl, scheme: Scheme, domain: Domain) -> Geometry:
+def static_geometry(particles: Particles, nl, scheme: Scheme, domain: Domain, boundary=None) -> Geometry:
     """Geometry of fixed (Eulerian) particles, computed once (``overflow`` = the list's
-    :class:`Status` neighbour bits)."""
-    return with_overflow_bits(geometry(particles.x, particles.vol, nl, scheme, domain), nl)
+    :class:`Status` neighbour bits; ``boundary``: for the complete rows of decision 92)."""
+    return with_overflow_bits(geometry(particles.x, particles.vol, nl, scheme, domain,
+                                       complete_rows_if_needed(particles, scheme, boundary)), nl)

@@ -110,8 +110,11 @@ def _box(domain: Domain):
     return jnp.asarray(domain.length), jnp.asarray(domain.periodic)
 
 
-def geometry(x, vol, nl, scheme: Scheme, domain: Domain) -> Geometry:
-    """Area vectors, offsets, reconstruction coefficients and interpolation weights."""
+def geometry(x, vol, nl, scheme: Scheme, domain: Domain, complete=None) -> Geometry:
+    """Area vectors, offsets, reconstruction coefficients and interpolation weights.
+
+    ``complete``: the rows :func:`mlsph_jax.area_correction.complete_rows` (needed only by the
+    area corrections that ask for it, ``linear_complete`` / ``quadratic_complete``)."""
     n, d = x.shape
     L, per = _box(domain)
     h = apx.smoothing_length(vol, scheme.beta, d)
@@ -129,7 +132,8 @@ def geometry(x, vol, nl, scheme: Scheme, domain: Domain) -> Geometry:
         fit = apx.build_from_offsets(dx, h, vol, idx, mask, scheme.reconstruction_spec(), coeffs_only=True)
         coeffs, fit_deg = fit.coeffs, fit.degree
     A = jnp.where(pair_mask[..., None], A, 0.0)
-    A, converged = scheme.component("area_correction").apply(A, dx, h, vol, jsafe, rev, pair_mask)
+    A, converged = scheme.component("area_correction").apply(A, dx, h, vol, jsafe, rev, pair_mask,
+                                                                   complete=complete)
     # Status bits: the list's overflow (cause unknown here: all three neighbour bits; the drivers
     # replace them by the list's own bits) and an unconverged area correction
     bits = (jnp.where(nl.overflow, jnp.int32(Status.NEIGHBOR_OVERFLOW), 0)

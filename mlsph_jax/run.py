@@ -28,6 +28,7 @@ import numpy as np
 
 from . import integrate
 from . import neighbors as nb
+from .area_correction import complete_rows, wants_complete_rows
 from .errors import InputError
 from .state import Domain, Params, Particles
 from .status import Status, combine, failure, state_status
@@ -115,11 +116,12 @@ class RunSetup:
         reused by every stage; for moving particles the list rebuilt per stage with the
         setup's fixed spec.  ``Geometry.overflow`` holds the :class:`Status` neighbour bits."""
         if self.moving:
-            return integrate.make_stage_geometry(self.scheme, self.domain, self.nspec)
+            return integrate.make_stage_geometry(self.scheme, self.domain, self.nspec, self.boundary)
         from .rhs import geometry
 
-        g = integrate.with_overflow_bits(geometry(particles.x, particles.vol, self.nl, self.scheme, self.domain),
-                                         self.nl)
+        complete = complete_rows(particles, self.boundary) if wants_complete_rows(self.scheme) else None
+        g = integrate.with_overflow_bits(geometry(particles.x, particles.vol, self.nl, self.scheme, self.domain,
+                                                  complete), self.nl)
         return lambda p: g
 
     def initial_status(self):
@@ -135,7 +137,8 @@ class RunSetup:
         h = self.scheme.beta * particles.vol ** (1.0 / particles.dim)
         nspec, nl = nb.update_or_grow(particles.x, h, self.nspec)
         new = dataclasses.replace(self, nspec=nspec, nl=nl)
-        return new, integrate.static_geometry(particles, nl, self.scheme, self.domain)
+        walls = self.boundary if wants_complete_rows(self.scheme) else None      # decision 92
+        return new, integrate.static_geometry(particles, nl, self.scheme, self.domain, walls)
 
     # --- compilation ------------------------------------------------------------------------
     def make_chunk(self, control: integrate.StepControl, n_steps: int, sharding=None):

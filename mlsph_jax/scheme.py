@@ -72,7 +72,8 @@ class Scheme:
     parachute_flux:           flux of the pairs MOOD reconstructs at first order: ``same`` (the
                               scheme's flux) or a registered flux (e.g. ``rusanov``)
     area_correction:          ``none`` | ``linear`` | ``quadratic`` | ``linear_interior`` |
-                              ``quadratic_interior`` (decision 88): consistency correction of
+                              ``quadratic_interior`` (decision 88) | ``linear_complete`` |
+                              ``quadratic_complete`` (decision 92): consistency correction of
                               the area vectors (:mod:`mlsph_jax.area_correction`, decision 59)
     self_flux:                keep the -F_i . sum_j A_ij term (thesis eq. 4.36)
     ghost_shear_dissipation:  ``True`` (thesis: the flux of a fluid-ghost pair sees the whole

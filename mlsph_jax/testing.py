@@ -280,11 +280,14 @@ def rhs_once(problem, p, boundary):
     import jax
 
     from . import neighbors
+    from .integrate import complete_rows_if_needed
     from .rhs import geometry, rhs
 
     h = problem.scheme.beta * p.vol ** 0.5
     _, nl = neighbors.allocate(p.x, h, problem.domain)
-    geom = geometry(p.x, p.vol, nl, problem.scheme, problem.domain)
+    # the complete rows of the problem's own walls (decision 92), whatever ``boundary`` is
+    geom = geometry(p.x, p.vol, nl, problem.scheme, problem.domain,
+                    complete_rows_if_needed(p, problem.scheme, problem.boundary))
     return jax.jit(lambda p: rhs(p, problem.params, geom, problem.scheme, boundary))(p)
 
 

@@ -295,6 +295,14 @@ class BoundaryIntegralWalls:
         rows = jnp.unique(flat, size=self.n_rows, fill_value=n)
         return rows, (distinct > self.n_rows) | jnp.any(st.count > self.near_capacity)
 
+    def wall_rows(self, p: Particles):
+        """``[N]`` bool: the particles with a boundary term, i.e. in the stencil of a wall point
+        (N_i(x_b) != 0 for some b) at the curves' construction values (decision 92: their rows'
+        consistency identity holds the wall integral, which the area correction's (*) lacks)."""
+        st = self.point_stencils(p, self.points({}).x)
+        hits = jnp.zeros(p.x.shape[0], jnp.int32).at[st.idx.reshape(-1)].add(st.mask.reshape(-1).astype(jnp.int32))
+        return hits > 0
+
     def apply(self, p: Particles, params) -> Particles:
         """Nothing to regenerate (no ghosts)."""
         return p

@@ -189,3 +189,15 @@ def test_interior_correction_stays_small_on_the_polar_cylinder_layout():
     closure = np.asarray(jnp.linalg.norm(jnp.sum(g.A, axis=1), axis=-1) * g.h / vol)
     assert closure[interior].max() < 0.05 < np.asarray(jnp.linalg.norm(jnp.sum(gl.A, axis=1), axis=-1)
                                                        * gl.h / vol)[interior].max()
+
+
+def test_complete_row_correction_without_its_rows_is_refused():
+    """Decision 92: ``linear_complete`` needs the caller's complete rows (kinds and walls); a
+    geometry built without them is refused naming the key instead of correcting every row (which
+    is decision 59's ``linear``, the option that diverges on bodies in a stream)."""
+    from mlsph_jax.area_correction import AREA_CORRECTIONS
+
+    z = jnp.zeros((3, 2, 2))
+    with pytest.raises(InputError, match=r"scheme\.area_correction.*complete"):
+        AREA_CORRECTIONS.get("linear_complete").apply(z, z, jnp.ones(3), jnp.ones(3), jnp.zeros((3, 2), int),
+                                                      jnp.zeros((3, 2), int), jnp.ones((3, 2), bool))

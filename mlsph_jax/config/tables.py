@@ -100,8 +100,10 @@ SCHEME_KEYS: dict[str, Key] = {
                                "making the midpoint divergence exact for fluxes of degree <= 1 (linear) or <= 2 "
                                "(quadratic) on any layout (one CG solve per geometry); linear_interior / "
                                "quadratic_interior impose it only on complete stencils (uncorrected "
-                               "closure <= 0.05 V/h; for layouts with walls or frozen far fields, "
-                               "decision 88)"),
+                               "closure <= 0.05 V/h; decision 88); linear_complete / quadratic_complete "
+                               "impose it on the fluid rows with no boundary-integral wall term (frozen, "
+                               "ghost and wall rows left free; for bodies in a stream and irregular clouds, "
+                               "decision 92)"),
     "self_flux": Key(bool, True,
                      doc="include the self-flux term -F_i.sum_j A_ij (thesis default; keeps "
                          "uniform states exact, conserves only up to a quadrature defect)"),
