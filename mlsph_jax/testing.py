@@ -69,20 +69,11 @@ def run_fingerprint(config: str | Path, overrides: Sequence[str] = ()) -> dict:
             "mood": _floats(s.get("mood", {}))}
 
 
-#: Fingerprint metrics whose round-off is measured against another metric's size (see
-#: :func:`fingerprint_differences`).
-ROUNDOFF_SCALE = {"cl": "cd", "cl_pressure": "cd", "cl_viscous": "cd"}
-
-
 def fingerprint_differences(new: Mapping, ref: Mapping, rtol: float = 1e-12, atol: float = 1e-13) -> list[str]:
     """Entries of two fingerprints that differ by more than ``atol + rtol |ref|`` (empty: equal).
 
     Conservation drifts are round-off-sized differences of totals; they are compared with the
-    absolute tolerance ``atol`` in units of the drift (itself relative to the total).  A metric
-    named in :data:`ROUNDOFF_SCALE` is compared relative to the larger of its own size and its
-    scale metric's: the lift coefficients of a symmetric body are zero up to the round-off of a
-    force integral whose terms are the size of the drag (the reduced Re = 40 cylinder's C_L is
-    -9e-14 with XLA's default back-end optimisation and 6e-14 without it)."""
+    absolute tolerance ``atol`` in units of the drift (itself relative to the total)."""
     problems = []
     for k in ("n_steps", "n_particles"):
         if new.get(k) != ref.get(k):
@@ -95,8 +86,7 @@ def fingerprint_differences(new: Mapping, ref: Mapping, rtol: float = 1e-12, ato
             x, y = a[k], b[k]
             if math.isnan(x) and math.isnan(y):
                 continue
-            scale = max(abs(y), abs(b.get(ROUNDOFF_SCALE.get(k, k), 0.0)))
-            if not abs(x - y) <= atol + rtol * scale:
+            if not abs(x - y) <= atol + rtol * abs(y):
                 problems.append(f"{group}.{k}: {x!r} != {y!r} (relative {abs(x - y) / max(abs(y), 1e-300):.2e})")
     t, tr = new.get("t_final"), ref.get("t_final")
     if t is None or tr is None or abs(t - tr) > rtol * abs(tr):

@@ -13,16 +13,6 @@ The cache lives in a fresh temporary folder made by the pytest process that star
 xdist controller, whose environment the workers and every subprocess inherit) and removed at its
 end, so every run starts cold and nothing outside the run is read or written.  A
 ``JAX_COMPILATION_CACHE_DIR`` already set by the user is used as it is and kept.
-
-The default suite (``-m 'not slow'``) also compiles with XLA's LLVM back-end optimisation off
-(``--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true``, appended to
-any ``XLA_FLAGS`` of the user's): its programs run for seconds but took longer to compile, and
-XLA's speed on the CPU comes from its HLO fusions, which these flags keep.  Measured on a loaded
-2-core machine (tests/test_config_regression.py and tests/test_local_time_stepping.py, -n 2):
-151 s against 255 s, every reduced-config fingerprint equal to 1e-12 relative except the lift
-coefficient of the symmetric cylinder, which is round-off in either build (6e-14 against -9e-14;
-see ``testing.fingerprint_differences``).  The slow suite and ``mlsph`` itself keep XLA's
-defaults; ``MLSPH_TEST_XLA_DEFAULTS=1`` keeps them for the default suite as well.
 """
 
 from __future__ import annotations
@@ -33,15 +23,10 @@ import tempfile
 
 _ENV = "JAX_COMPILATION_CACHE_DIR"
 _made_here: str | None = None
-FAST_COMPILE_FLAGS = "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
 
 
 def pytest_configure(config):
     global _made_here
-    if "not slow" in (config.option.markexpr or "") and not os.environ.get("MLSPH_TEST_XLA_DEFAULTS"):
-        flags = os.environ.get("XLA_FLAGS", "")
-        if FAST_COMPILE_FLAGS not in flags:      # the xdist workers inherit the controller's flags
-            os.environ["XLA_FLAGS"] = f"{flags} {FAST_COMPILE_FLAGS}".strip()
     if not os.environ.get(_ENV):
         _made_here = tempfile.mkdtemp(prefix="mlsph-jax-test-cache-")
         os.environ[_ENV] = _made_here
