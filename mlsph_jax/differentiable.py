@@ -365,7 +365,8 @@ def check(out: SimOutput, simulate=None, params: Params | None = None) -> None:
     if st & Status.NEIGHBOR_OVERFLOW:
         detail = ("the neighbour capacity of a differentiated run is fixed (sized on the host from the initial "
                   "state, so the topology carries no gradient); rerun with a larger headroom "
-                  "(make_simulate(..., headroom=...))")
+                  "(make_simulate(..., headroom=...); it sizes the lists of moving particles, a fixed, Eulerian "
+                  "list holds its largest count and is never rebuilt)")
     elif st & Status.DT_ABOVE_CFL:
         detail = ("the flow sped up: use more steps (make_simulate(..., n_steps=...); mlsph: --n-steps, or a "
                   "larger CFL number with --set time.cfl=...)")

@@ -209,7 +209,8 @@ def ode_term(problem, nspec_or_nl=None, *, headroom: float = 1.6, check_overflow
     args = make_args(problem, params, particles, nl0)
     if check_overflow and args["geom"] is not None and bool(args["geom"].overflow):
         raise NeighborOverflowError("neighbour-list capacity overflow in the initial (static) geometry; "
-                                    "rerun with a larger headroom")
+                                    "rerun with a larger headroom (moving particles; a fixed, Eulerian list holds "
+                                    "its largest count, decision 91)")
     term = diffrax.ODETerm(_vector_field(problem, nspec, check_overflow))
     return term, (particles.x, particles.vol, particles.q), args
 

@@ -55,7 +55,7 @@ def moving_cell_size(h: np.ndarray, scheme, dim: int) -> float | None:
 
 def moving_min_headroom(dim: int) -> float:
     """Smallest capacity headroom the driver uses for moving particles: 2.0 in 1D (a shock
-    tube's Lagrangian particles compress by large factors), else 1.3, the Eulerian
+    tube's Lagrangian particles compress by large factors), else 1.3, the
     ``scheme.neighbor_headroom`` default (decision 84: every padding slot costs every pass over
     the stencil of every stage; a compressing 2D/3D flow regrows, i.e. stops the chunk, grows the
     capacity from the counts it measured and recompiles, never drops a neighbour)."""

@@ -207,6 +207,12 @@ def test_complete_row_correction_makes_the_graded_cloud_linearly_exact():
     assert np.median(new[walls]) > 0.05                                        # not imposed there
     assert old[rows].max() > 0.02, old[rows].max()                             # the old criterion
     assert np.abs(np.asarray(moment_defect(g.A, g.dx, g.h, p.vol, g.pair_mask, 1)))[rows].max() > 0.02
+    # the driver's Eulerian geometry (RunSetup.host_geometry) passes the same rows: a dropped
+    # boundary would make every fluid row "complete" (decision 59's diverging linear)
+    pb2 = build_problem(_cfg((*GRADED, "scheme.area_correction=\"linear_complete\"")))
+    _, g2 = setup_run(pb2).host_geometry(pb2.particles)
+    D2 = np.abs(np.asarray(moment_defect(g2.A, g2.dx, g2.h, p.vol, g2.pair_mask, 1))).max(axis=(1, 2))
+    assert D2[rows].max() < 1e-9 and np.median(D2[walls]) > 0.05, (D2[rows].max(), np.median(D2[walls]))
 
 
 @pytest.mark.slow   # ~40-80 s at load 8-9: the cloud's geometry and two right-hand sides compiled
