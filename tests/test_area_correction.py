@@ -200,5 +200,5 @@ def test_complete_row_correction_without_its_rows_is_refused():
     z = jnp.zeros((3, 2, 2))
     corr = AREA_CORRECTIONS.get("linear_complete")        # registered (outside the raises block)
     with pytest.raises(InputError, match=r"scheme\.area_correction.*complete-stencil variants .* need"):
-        corr.apply(z, z, jnp.ones(3), jnp.ones(3), jnp.zeros((3, 2), int),
-                                                      jnp.zeros((3, 2), int), jnp.ones((3, 2), bool))
+        corr.apply(z, z, jnp.ones(3), jnp.ones(3), jnp.zeros((3, 2), int), jnp.zeros((3, 2), int),
+                   jnp.ones((3, 2), bool))

@@ -268,6 +268,8 @@ def test_verlet_skin_lists_give_the_trajectory_of_per_stage_rebuilds():
     assert float(a.t) == float(b.t) and int(b.status) == 0
 
 
+@pytest.mark.slow   # 40-94 s (CI time); the default suite runs geometry_update = "step" in the
+#                     temporal-order test below (first order with the geometry frozen over a step)
 def test_geometry_per_step_reuses_the_start_geometry_in_all_three_stages():
     """``scheme.geometry_update = "step"`` (issue 15, opt-in): the SSP-RK3 step is the one whose
     three stages use the geometry (list, area vectors, fit) of the step's start positions, to
