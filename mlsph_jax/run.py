@@ -28,7 +28,6 @@ import numpy as np
 
 from . import integrate
 from . import neighbors as nb
-from .area_correction import complete_rows, wants_complete_rows
 from .errors import InputError
 from .state import Domain, Params, Particles
 from .status import Status, combine, failure, state_status
@@ -119,7 +118,7 @@ class RunSetup:
             return integrate.make_stage_geometry(self.scheme, self.domain, self.nspec, self.boundary)
         from .rhs import geometry
 
-        complete = complete_rows(particles, self.boundary) if wants_complete_rows(self.scheme) else None
+        complete = integrate.complete_rows_if_needed(particles, self.scheme, self.boundary)
         g = integrate.with_overflow_bits(geometry(particles.x, particles.vol, self.nl, self.scheme, self.domain,
                                                   complete), self.nl)
         return lambda p: g
@@ -137,8 +136,7 @@ class RunSetup:
         h = self.scheme.beta * particles.vol ** (1.0 / particles.dim)
         nspec, nl = nb.update_or_grow(particles.x, h, self.nspec)
         new = dataclasses.replace(self, nspec=nspec, nl=nl)
-        walls = self.boundary if wants_complete_rows(self.scheme) else None      # decision 92
-        return new, integrate.static_geometry(particles, nl, self.scheme, self.domain, walls)
+        return new, integrate.static_geometry(particles, nl, self.scheme, self.domain, self.boundary)
 
     # --- compilation ------------------------------------------------------------------------
     def make_chunk(self, control: integrate.StepControl, n_steps: int, sharding=None):
