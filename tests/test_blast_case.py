@@ -188,6 +188,7 @@ def _run(*overrides: str, shift: float = 0.0, out=None):
     return pb, res
 
 
+@pytest.mark.slow   # CI time; the blast config's fingerprint runs the case in the default suite
 def test_coarse_run_symmetry_accuracy_far_field(tmp_path):
     pb, res = _run(out=tmp_path)
     m = res.summary["metrics"]

@@ -211,6 +211,8 @@ def test_couette_reaches_the_exact_profile():
     assert np.abs(exact(cfg, y, 10.0)).max() > 0.9 and np.abs(exact(cfg, y, 1.0) - y).max() > 0.2
 
 
+# CI time: the exact Couette profile and the open channel's Poiseuille flow stay in the default suite
+@pytest.mark.slow
 def test_poiseuille_reaches_the_exact_profile_and_converges():
     """Re = 10, t = 6 (transient mode 2.7e-3 of u_peak): measured linf 0.178 at ny = 10 and
     0.0211 at ny = 20 (order 3.1); bounds 0.025 and a ratio > 6.  The thesis' printed

@@ -150,6 +150,7 @@ COARSE = ("case.n_theta=32", "case.r_far=4.0", "case.mach=0.2", "time.t_end=4.0"
           "output.degree_fallback_warn=0.1")    # 8.3 % (the first ring) on a quadratic fit (the config: 2.8 %)
 
 
+@pytest.mark.slow   # CI time; the reduced cylinder configs' fingerprints run the case in the default suite
 def test_coarse_re40_drag_in_band():
     """Coarse Re = 40 run (n_theta = 32, far field at 4 D, Mach 0.2 for half the steps, t = 4
     after the impulsive start, 512 particles, ~700 steps): C_D
@@ -167,6 +168,8 @@ def test_coarse_re40_drag_in_band():
 ELLIPSE = ('case.body="ellipse"', "case.aspect=2.0", "case.alpha=5.0")
 
 
+# CI time: decision 77's wall threshold is checked by test_one_sided_first_ring_fits_fall_back_by_the_wall_threshold
+@pytest.mark.slow
 def test_builtin_scheme_survives_the_impulsive_start_on_a_coarse_ellipse():
     """The config's cubic reconstruction on the strongly curved, coarse body of the shape studies
     (ellipse A = 2 at 5 deg, 32 points, far field at 3 D, Mach 0.2, global steps) with the scheme's

@@ -59,6 +59,7 @@ def test_checkpointing_gives_the_same_gradient_over_1000_steps():
     assert grads["nested"] == pytest.approx(grads["none"], rel=1e-12)
 
 
+@pytest.mark.slow   # CI time; gradients of runs stay in the default suite (parameters, forward mode, VJP)
 def test_gradient_wrt_initial_fields_and_positions():
     """Directional derivatives of ke_final along random perturbations of the initial conserved
     fields and of the particle positions match central differences (relative 1e-5; measured
@@ -83,6 +84,8 @@ def test_gradient_wrt_initial_fields_and_positions():
     assert float(jnp.sum(gx * dx)) == pytest.approx(float(fd_x), rel=1e-5)
 
 
+# CI time: gradients of runs against FD stay in the default suite (smooth case, HLLC run, Couette mean)
+@pytest.mark.slow
 def test_mood_riemann_gradient_matches_finite_differences():
     """R1 with MOOD (n = 40): flags carry no gradient, so the gradient is that of the selected
     branch; away from flag changes it matches finite differences (measured: gamma 1.6e-10)."""

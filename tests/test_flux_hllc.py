@@ -299,6 +299,7 @@ def run_config(name, overrides):
     return cfg, run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True)
 
 
+@pytest.mark.slow   # CI time; HLLC runs stay in the default suite (parachute, gradient of a short run)
 def test_sod_hllc_is_no_worse_than_rusanov_and_has_a_sharper_contact():
     over = ["case.n=80", "time.t_end=0.15"]
     out = {}

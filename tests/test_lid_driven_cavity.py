@@ -240,6 +240,7 @@ def _lid_layer_rates(flag: str, n: int = 16):
     return x, np.asarray(p.kind) == int(Kind.FLUID), inviscid, np.asarray(f(p, P)), float(P["physics.mu"]), dx, delta
 
 
+@pytest.mark.slow   # CI time; the cavity config's ghost_shear_dissipation = false path is held by its fingerprint
 def test_mirror_walls_exert_no_inviscid_tangential_force():
     """Decision 81.  A lid layer u = exp(-s/delta) (s = 1 - y, v = 0) has the exact rate
     d(rho u)/dt = mu u'' and the lid's tangential force per unit length is the wall shear

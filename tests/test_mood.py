@@ -173,9 +173,10 @@ def _run(case: str, *over: str):
     return res
 
 
-# r1 and r2 are slow (CI time); sod keeps the comparison in the default suite
-@pytest.mark.parametrize("case", [pytest.param("r1", marks=pytest.mark.slow),
-                                  pytest.param("r2", marks=pytest.mark.slow), "sod"])
+# slow (CI time): MOOD's detection, parachute and positivity stay in the default suite
+# (test_mood_rejects_the_overshooting_candidate, test_strong_r2_runs_to_the_end_with_positive_density)
+@pytest.mark.slow
+@pytest.mark.parametrize("case", ["r1", "r2", "sod"])
 def test_mood_beats_first_order_without_overshoot(case):
     mood = _run(case)
     assert mood.summary["scheme"]["limiter"] == "mood"

@@ -123,6 +123,7 @@ def _velocity_errors(ns, t_end=0.2):
                  f"time.t_end={t_end}", "output.snapshots=1")["metrics"]["l2_velocity_error"] for n in ns]
 
 
+@pytest.mark.slow   # CI time; the Re = 100 decay and the config fingerprints stay in the default suite
 def test_velocity_error_converges_at_second_order_or_better_on_a_perturbed_layout():
     """Relative L2 velocity error at t = 0.2, Re = 100, perturbed lattice (+-0.15 dx, seed 1),
     Eulerian MLSPH-ALE with quadratic reconstruction.  A prototype measured 0.524, 0.0923,
@@ -147,6 +148,8 @@ def _run_builtin(*sets: str) -> dict:
     return run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True).summary
 
 
+# CI time: the shipped config is held by its fingerprint; the Re = 100 decay stays in the default suite
+@pytest.mark.slow
 def test_builtin_config_coarse_run_keeps_its_kinetic_energy():
     """configs/taylor_green_2d.toml at 16 x 16 to t* = 1 (Re = 100), its scheme as shipped (cubic
     reconstruction + Thornber's low-Mach correction, c0 = 20).  Measured ke_rel_error 0.0152 (docs/

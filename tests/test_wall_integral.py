@@ -361,6 +361,7 @@ def _channel_run(path, walls, *overrides):
     return run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True).summary
 
 
+@pytest.mark.slow   # CI time; test_poiseuille_start_up_beats_the_mirror_ghosts stays in the default suite
 def test_couette_matches_the_exact_series_at_least_as_well_as_mirror_ghosts():
     """Start-up Couette (Re 10, ny = 10, t = 1).  Measured L-inf errors: 0.0082 with the boundary
     integral (0.0166 before the wall rows were made linearly consistent, decision 60), 0.0526
