@@ -38,6 +38,11 @@ Numerics
   active monomials exactly as the autodiff of the masked factor is);
   ``derivative="fixed_centre"`` freezes C_e = M_e^{-1} P_e W_e and differentiates only the basis
   (the cheaper "diffuse" derivative, SPEC §4.4 item 2).
+* In :func:`operators_block` the unrolled factor of a row block ([B, 1] arrays) is computed
+  inside a conditional (:func:`per_row_once`, docs/architecture.md decision 94).  XLA:CPU's
+  fusion otherwise copies these cheap elementwise producers into every fused consumer over the
+  [B, K] stencil planes, which multiplies the compiled program's size and its compile time; the
+  results are the same bits.
 """
 
 from __future__ import annotations
@@ -355,6 +360,48 @@ def chol_solve_lists(L, B):
     return x
 
 
+def per_row_once(fn, *operands):
+    """``fn(*operands)``, computed once: inside a ``lax.cond`` (docs/architecture.md decision 94).
+
+    XLA:CPU's fusion duplicates cheap elementwise producers into every fused consumer: the
+    unrolled factor of a row block ([B, 1] arrays) was recomputed inside each fusion over the
+    [B, K] stencil planes that reads it (a 2D cubic block with the full derivative: 26,267 HLO
+    instructions, ~11 copies of the factor).  A conditional is not fused into its consumers, so
+    its results are computed once and read from memory.  Operands and results cross the
+    conditional stacked, one array per shape and dtype.  Both branches are ``fn`` and the
+    predicate is a traced value (never folded at compile time), so whichever branch runs, the
+    results are those of ``fn``, bit for bit, NaN included.  Under ``vmap`` with a batched
+    predicate JAX evaluates both branches (twice the work, the same results); the package calls
+    this on row blocks, never under ``vmap``.
+    """
+    leaves, tree = jax.tree.flatten(tuple(jnp.asarray(a) for a in operands))
+    out_leaves, out_tree = jax.tree.flatten(jax.eval_shape(fn, *operands))
+
+    def groups(avals):
+        g = {}
+        for i, a in enumerate(avals):
+            g.setdefault((a.shape, jnp.dtype(a.dtype)), []).append(i)
+        return list(g.values())
+
+    in_groups, out_groups = groups(leaves), groups(out_leaves)
+
+    def unstack(stacks, index_groups, n):
+        flat = [None] * n
+        for idx, st in zip(index_groups, stacks, strict=True):
+            for k, i in enumerate(idx):
+                flat[i] = st[k]
+        return flat
+
+    def branch(*stacks):
+        out = jax.tree.leaves(fn(*jax.tree.unflatten(tree, unstack(stacks, in_groups, len(leaves)))))
+        return tuple(jnp.stack([out[i] for i in idx]) for idx in out_groups)
+
+    stacks = [jnp.stack([leaves[i] for i in idx]) for idx in in_groups]
+    first = jnp.ravel(stacks[0])[0]
+    res = jax.lax.cond(first == first, branch, branch, *stacks)
+    return jax.tree.unflatten(out_tree, unstack(res, out_groups, len(out_leaves)))
+
+
 def operators_block(dx, mask, h, *, kernel: Kernel, degree: int, rcond: float, derivative: str,
                     with_coeffs: bool, vol_j=None, thresholds=None):
     """:func:`particle_operators` for a block of particles at once.
@@ -390,7 +437,7 @@ def operators_block(dx, mask, h, *, kernel: Kernel, degree: int, rcond: float, d
         M[a][b] = M[b][a] = s[:, None]
     if thresholds is not None:
         rcond = thresholds(jnp.sum(w * vol_j.astype(w.dtype), axis=1))
-    L, ok = cholesky_lists(M, rcond if jnp.ndim(rcond) == 0 else jnp.reshape(rcond, (-1, 1)))
+    L, ok = per_row_once(cholesky_lists, M, rcond if jnp.ndim(rcond) == 0 else jnp.reshape(rcond, (-1, 1)))
     run, levels = None, []
     for lev in range(degree + 1):               # prefix by degree level (active_monomials)
         for j in np.flatnonzero(mdeg == lev):
