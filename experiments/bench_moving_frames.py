@@ -9,12 +9,12 @@ included) twice: from this tree and from ``--baseline REF`` (a git commit export
 archive`` into a temporary folder and imported as a second package, ``mlsph_base``).  All chunks
 then run interleaved (base A, this A, base B, this B, ..., ``--rounds`` times) and each keeps its
 best time, so the ratios are those of one load; the load average is recorded before and after.
-Both versions' final states are compared (max |difference|, should be 0 when the change keeps
-the numbers).
+Both versions' final states (q, x and V) are compared (max |difference|, should be 0 when the
+change keeps the numbers).
 
     python experiments/bench_moving_frames.py --baseline 0f0c6e6 [--sizes 50 100] [--rounds 5]
 
-Prints per chunk: compile seconds, ms per step (best wall time, and best process CPU time),
+Prints per chunk: compile seconds, ms per step (best and median wall time, and best process CPU time),
 particle-updates/s (N / step time) and the ratio to
 the Eulerian step of the same version; writes experiments/output/bench_moving_frames.json.
 """
@@ -25,6 +25,7 @@ import argparse
 import importlib
 import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -70,7 +71,8 @@ def chunk_of(pkg, n: int, frame: str, steps: int, sets=()):
     comp = time.perf_counter() - t0
     r = c(*args)
     assert int(r.status) == 0 and int(r.step) == steps, int(r.status)
-    return c, args, int(p.n), comp, setup.nspec.capacity, np.asarray(r.particles.q)
+    state = np.concatenate([np.asarray(a).ravel() for a in (r.particles.q, r.particles.x, r.particles.vol)])
+    return c, args, int(p.n), comp, setup.nspec.capacity, state
 
 
 def main(argv=None) -> int:
@@ -98,25 +100,29 @@ def main(argv=None) -> int:
                 print(f"n={n} {ver:>4s} {frame:>10s}: compiled in {comp:.1f} s (K = {cap})", flush=True)
         best = dict.fromkeys(calls, float("inf"))
         cpu = dict.fromkeys(calls, float("inf"))
+        times = {key: [] for key in calls}
         for _ in range(a.rounds):
             for key, (c, args, *_rest) in calls.items():
                 t0, c0 = time.perf_counter(), time.process_time()
                 jax.block_until_ready(c(*args))
-                best[key] = min(best[key], time.perf_counter() - t0)
+                times[key].append(time.perf_counter() - t0)
+                best[key] = min(best[key], times[key][-1])
                 cpu[key] = min(cpu[key], time.process_time() - c0)
         for (ver, frame), (_, _, npart, comp, cap, q) in calls.items():
             step = best[(ver, frame)] / a.chunk_steps
+            median = statistics.median(times[(ver, frame)]) / a.chunk_steps
             eul = best.get((ver, "eulerian"))
             ratio = None if eul is None else best[(ver, frame)] / eul
             diff = (float(np.max(np.abs(q - calls[("base", frame)][5]))) if "base" in versions else None)
             rows.append({"n": n, "particles": npart, "version": ver, "frame": frame, "capacity": cap,
-                         "compile_s": comp, "step_s": step, "cpu_step_s": cpu[(ver, frame)] / a.chunk_steps,
+                         "compile_s": comp, "step_s": step, "median_step_s": median,
+                         "cpu_step_s": cpu[(ver, frame)] / a.chunk_steps,
                          "particle_updates_per_s": npart / step,
                          "ratio_to_eulerian": ratio, "max_abs_diff_to_base": diff})
-            print(f"n={n} {ver:>4s} {frame:>10s}: {1e3 * step:8.2f} ms/step (process CPU "
+            print(f"n={n} {ver:>4s} {frame:>10s}: {1e3 * step:8.2f} ms/step (median {1e3 * median:.2f}, process CPU "
                   f"{1e3 * cpu[(ver, frame)] / a.chunk_steps:.2f} ms)  {npart / step:.3e} updates/s"
                   + ("" if ratio is None else f"  {ratio:.2f}x Eulerian")
-                  + ("" if diff is None else f"  |q - base| {diff:.1e}"), flush=True)
+                  + ("" if diff is None else f"  |(q, x, V) - base| {diff:.1e}"), flush=True)
     load1 = os.getloadavg()
     print(f"load average {load0[0]:.2f} -> {load1[0]:.2f}")
     OUT.parent.mkdir(parents=True, exist_ok=True)

@@ -15,13 +15,17 @@ functions of the public API):
 * ``chunk``:     the driver's jitted chunk (:func:`mlsph_jax.integrate.make_chunk`, fixed dt) of
   ``--chunk-steps`` steps, per step: CFL and status reductions included; for moving particles
   with the Verlet-skin lists (the driver's default) and, timed interleaved in the same process
-  (best of ``--repeat``), with per-stage rebuilds (``skin = 0``).
+  (best of ``--repeat``), with per-stage rebuilds (``skin = 0``); for Eulerian particles, timed
+  interleaved with it, ``bare_rhs``: 3 x ``--chunk-steps`` bare forward-Euler sub-steps (right-hand
+  side and update only), the bound of what the rest of the step (CFL and status reductions,
+  Shu-Osher combinations, statistics) costs.
 
 ``--trace DIR`` also records a :mod:`jax.profiler` trace of five steps (open it with
 TensorBoard's profile plugin or Perfetto).  ``--fusions N`` traces one run of the driver chunk
 and prints its N most expensive XLA thunks (time per step summed over their calls, call count,
 output shape and the source line of the jaxpr operation they come from; fusions inside the
-blocked passes run once per row block): where a step's time goes, op by op.
+blocked passes run once per row block): where a step's time goes, op by op; it also prints the
+thunks executed per step inside the right-hand side and outside it, with their summed time.
 
     python experiments/profile_step.py --n 100 --frames eulerian ale_shift [--trace /tmp/trace]
 
@@ -42,7 +46,7 @@ import numpy as np
 from mlsph_jax import config
 from mlsph_jax import neighbors as nb
 from mlsph_jax.cases import build_problem
-from mlsph_jax.integrate import StepControl, initial_carry, make_chunk, make_stage_geometry, ssp_rk3_step
+from mlsph_jax.integrate import StepControl, _euler, initial_carry, make_chunk, make_stage_geometry, ssp_rk3_step
 from mlsph_jax.rhs import geometry, rhs
 from mlsph_jax.run import setup_run, smoothing_lengths
 
@@ -76,18 +80,31 @@ def interleaved(calls: dict, repeat: int) -> dict:
     return best
 
 
-def thunk_table(compiled, args, steps: int, top: int, folder: str) -> list[dict]:
+#: Source files of the right-hand side proper: a thunk whose call stack passes through one of
+#: them is counted as right-hand side by :func:`thunk_table`'s split, every other one as the rest
+#: of the step (CFL and status reductions, Shu-Osher combinations, statistics, loop plumbing).
+RHS_FILES = ("rhs.py", "flux.py", "reconstruction.py", "viscous.py", "mls.py", "approximation/__init__.py",
+             "stencil.py", "mood.py", "frames.py", "area_correction.py")
+
+
+def thunk_table(compiled, args, steps: int, top: int, folder: str, split: dict | None = None) -> list[dict]:
     """The ``top`` most expensive XLA thunks of one call of ``compiled`` (a jax.profiler trace,
-    events summed by name), with their HLO output shapes and source lines."""
+    events summed by name), with their HLO output shapes and source lines.  ``split`` (a dict)
+    receives the thunks executed per step and their summed time, in the right-hand side (a
+    source file of :data:`RHS_FILES` on the call stack) and outside it."""
     import glob
     import gzip
     import re
     from collections import Counter
 
     hlo = compiled.as_text()
-    shape, where = {}, {}
+    shape, where, in_rhs = {}, {}, {}
     names = hlo.split("\nFileNames\n", 1)[-1].split("\nFunctionNames\n", 1)[0]   # the FileNames section
     files = dict(re.findall(r'^(\d+) "[^"]*?([^"/]+)"$', names, re.M))
+    paths = dict(re.findall(r'^(\d+) "([^"]*)"$', names, re.M))
+    loc_file = {k: paths.get(f, "") for k, f in
+                re.findall(r"^(\d+) \{file_name_id=(\d+) function_name_id=\d+ line=\d+", hlo, re.M)}
+    parent = dict(re.findall(r"^(\d+) \{file_location_id=\d+ parent_frame_id=(\d+)", hlo, re.M))
     locs = {k: f"{files.get(f, '?')}:{ln}" for k, f, ln in
             re.findall(r"^(\d+) \{file_name_id=(\d+) function_name_id=\d+ line=(\d+)", hlo, re.M)}
     frames = dict(re.findall(r"^(\d+) \{file_location_id=(\d+) parent", hlo, re.M))
@@ -100,6 +117,14 @@ def thunk_table(compiled, args, steps: int, top: int, folder: str) -> list[dict]
             if op:
                 line_no = locs.get(frames.get(fr.group(1), ""), "?") if fr else "?"   # innermost frame
                 where.setdefault(m.group(1), f"{op.group(1).split('/')[-1]} ({line_no})")
+            if fr and m.group(1) not in in_rhs:      # any frame of the call stack in the rhs?
+                fid, hit = fr.group(1), False
+                for _ in range(200):
+                    hit = hit or loc_file.get(frames.get(fid, ""), "").endswith(RHS_FILES)
+                    if fid not in parent or parent[fid] == fid:
+                        break
+                    fid = parent[fid]
+                in_rhs[m.group(1)] = hit
     jax.block_until_ready(compiled(*args))
     with jax.profiler.trace(folder, create_perfetto_trace=True):
         jax.block_until_ready(compiled(*args))
@@ -111,6 +136,12 @@ def thunk_table(compiled, args, steps: int, top: int, folder: str) -> list[dict]
         if e.get("ph") == "X" and not e["name"].startswith(("while", "cond", "Thunk", "$", "call")):
             tot[e["name"]] += e.get("dur", 0)
             cnt[e["name"]] += 1
+    if split is not None:           # thunks proper (not the trace's end markers or thread-pool events)
+        for k in cnt:
+            if k in shape:
+                side = "rhs" if in_rhs.get(k) else "rest"
+                split[f"{side}_thunks_per_step"] = split.get(f"{side}_thunks_per_step", 0.0) + cnt[k] / steps
+                split[f"{side}_ms_per_step"] = split.get(f"{side}_ms_per_step", 0.0) + tot[k] / 1e3 / steps
     return [{"thunk": k, "ms_per_step": v / 1e3 / steps, "calls": cnt[k], "shape": shape.get(k, ""),
              "from": where.get(k, "")} for k, v in tot.most_common(top)]
 
@@ -150,6 +181,12 @@ def profile(n: int, frame: str, repeat: int, trace: str | None, chunk_steps: int
         r = c(*args)
         assert int(r.status) == 0 and int(r.step) == chunk_steps, int(r.status)
         own[key] = (c, args)
+    if not sc.moving:   # the bound of everything but the rhs: 3 x chunk_steps bare Euler sub-steps
+        def bare(p, prm, g):
+            return jax.lax.scan(lambda z, _: (_euler(z, jax.numpy.asarray(dt), rhs(z, prm, g, sc)), None), p, None,
+                                length=3 * chunk_steps)[0]
+
+        own["bare_rhs"] = (jax.jit(bare).lower(p, prm, g).compile(), (p, prm, g))
     for k, v in interleaved(own, repeat).items():
         out[f"{k}_step_s"] = v / chunk_steps
     out["chunk_particle_steps_per_s"] = p.n / out["chunk_step_s"]
@@ -157,7 +194,13 @@ def profile(n: int, frame: str, repeat: int, trace: str | None, chunk_steps: int
         calls.update({(frame, k): (c, args, chunk_steps) for k, (c, args) in own.items()})
     if fusions:
         c, args = own["chunk"]
-        out["thunks"] = thunk_table(c, args, chunk_steps, fusions, str(OUT.parent / f"trace_{frame}_{n}"))
+        split = {}
+        out["thunks"] = thunk_table(c, args, chunk_steps, fusions, str(OUT.parent / f"trace_{frame}_{n}"), split)
+        out["thunk_split"] = split
+        print(f"{frame}: XLA thunks per step of the driver chunk: right-hand side "
+              f"{split.get('rhs_thunks_per_step', 0):.1f} ({split.get('rhs_ms_per_step', 0):.2f} ms), rest "
+              f"{split.get('rest_thunks_per_step', 0):.1f} ({split.get('rest_ms_per_step', 0):.2f} ms) "
+              "(thunk time summed over one traced call)")
         print(f"{frame}: {fusions} most expensive XLA thunks of the driver chunk (ms per step, calls, output, "
               "operation (source line)):")
         for t in out["thunks"]:
@@ -194,7 +237,9 @@ def main(argv=None) -> int:
         print(f"{'':>9s} driver chunk: {1e3 * r['chunk_step_s']:.1f} ms/step "
               f"({r['chunk_particle_steps_per_s']:.3e} particle-steps/s, compile {r['chunk_compile_s']:.1f} s)"
               + (f"; per-stage rebuilds {1e3 * r['chunk_rebuild_step_s']:.1f} ms/step" if 'chunk_rebuild_step_s' in r
-                 else ""), flush=True)
+                 else "")
+              + (f"; three bare rhs + Euler sub-steps {1e3 * r['bare_rhs_step_s']:.1f} ms/step (interleaved)"
+                 if 'bare_rhs_step_s' in r else ""), flush=True)
     # every frame's chunks again, all interleaved in this process (A B C A B C ..., best of
     # --repeat): ratios that contention on a shared machine does not skew
     best = interleaved({k: (c, args) for k, (c, args, _) in calls.items()}, a.repeat)

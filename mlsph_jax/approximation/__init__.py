@@ -150,8 +150,16 @@ VMAP_BLOCK_ROWS = 2048
 
 
 def block_rows(n: int, k: int) -> int:
-    """Rows per block for arrays of ``n`` rows and ``k`` slots (see :data:`BLOCK_SLOTS`)."""
-    return max(1, min(n, BLOCK_SLOTS // max(k, 1)))
+    """Rows per block for arrays of ``n`` rows and ``k`` slots: the fewest blocks of at most
+    :data:`BLOCK_SLOTS` slots, their rows balanced (ceil(n / blocks)).  The last block of
+    :func:`row_blocks` is clamped to end at row ``n`` and recomputes the rows it shares with its
+    predecessor: with unbalanced blocks (``BLOCK_SLOTS // k`` rows each) that was up to a whole
+    block, e.g. 2 x 1,517 rows for 2,500 particles at K = 27 (21 % of the pair sweep and the fit
+    pass done twice); balanced, fewer rows than there are blocks (docs/performance.md,
+    "Per-step overhead at 2,500 particles")."""
+    cap = max(1, min(n, BLOCK_SLOTS // max(k, 1)))
+    blocks = -(-n // cap)
+    return max(1, -(-n // blocks))
 
 
 #: Whether :func:`row_blocks` rematerialises each block in reverse mode (see there); switched
