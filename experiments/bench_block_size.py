@@ -66,7 +66,8 @@ def main(argv=None) -> int:
             best[s] = min(best[s], time.perf_counter() - t0)
     load = os.getloadavg()
     for s in a.slots:
-        print(f"BLOCK_SLOTS={s:>7d} ({max(1, min(n, s // nl.idx.shape[1]))} rows): {1e3 * best[s]:.1f} ms, "
+        rows = apx.balanced_rows(n, max(1, min(n, s // nl.idx.shape[1])))
+        print(f"BLOCK_SLOTS={s:>7d} ({rows} rows): {1e3 * best[s]:.1f} ms, "
               f"{n / best[s]:.3e} particle evaluations/s, compile {compile_s[s]:.1f} s")
     print(f"N={n}, K={nl.idx.shape[1]}, load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
     OUT.parent.mkdir(parents=True, exist_ok=True)

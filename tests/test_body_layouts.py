@@ -100,10 +100,8 @@ def test_cartesian_cut_out_gap_on_the_circle():
 from mlsph_jax.testing import uniform_stream_residuals  # noqa: E402
 
 
-# slow (CI time): the lattice layouts are built and checked in the default suite by
-# test_shape_derivative_refused_on_a_lattice_but_not_the_stream_angle
-@pytest.mark.slow
-@pytest.mark.parametrize("layout", ["cartesian", "blend"])
+# cartesian is slow (CI time); the blend holds a Cartesian part and stays in the default suite
+@pytest.mark.parametrize("layout", [pytest.param("cartesian", marks=pytest.mark.slow), "blend"])
 def test_uniform_stream_stays_uniform_on_the_lattice_layouts(layout):
     """A uniform free stream on the layout with its frozen far field and no body has a zero
     right-hand side to round-off, frozen particles get no update; with the body, a fluid at rest

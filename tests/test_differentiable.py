@@ -59,7 +59,6 @@ def test_checkpointing_gives_the_same_gradient_over_1000_steps():
     assert grads["nested"] == pytest.approx(grads["none"], rel=1e-12)
 
 
-@pytest.mark.slow   # CI time; gradients of runs stay in the default suite (parameters, forward mode, VJP)
 def test_gradient_wrt_initial_fields_and_positions():
     """Directional derivatives of ke_final along random perturbations of the initial conserved
     fields and of the particle positions match central differences (relative 1e-5; measured
@@ -84,7 +83,8 @@ def test_gradient_wrt_initial_fields_and_positions():
     assert float(jnp.sum(gx * dx)) == pytest.approx(float(fd_x), rel=1e-5)
 
 
-# CI time: gradients of runs against FD stay in the default suite (smooth case, HLLC run, Couette mean)
+# CI time: reverse mode through MOOD stays in the default suite (test_mood's
+# test_gradient_through_a_mood_run_is_finite), FD checks of run gradients too (smooth case, HLLC run)
 @pytest.mark.slow
 def test_mood_riemann_gradient_matches_finite_differences():
     """R1 with MOOD (n = 40): flags carry no gradient, so the gradient is that of the selected
@@ -179,7 +179,8 @@ def test_calibrate_cli_fits_the_viscosity_and_writes_history_and_plot(tmp_path):
     assert main([*common[:5], str(tmp_path / "none.csv"), *common[6:], "--out", str(tmp_path / "bad")]) == 2
 
 
-@pytest.mark.slow   # 29 s; CI time: gradients of runs vs FD stay in the default suite (smooth case, MOOD R1)
+# 29 s; CI time: gradients of runs vs FD stay in the default suite (smooth case, fields and positions)
+@pytest.mark.slow
 def test_taylor_green_metrics_are_differentiable_and_agree_with_the_host_metrics():
     """The Taylor-Green error metrics exist as jnp functions (``--of l2_velocity_error`` etc.):
     on the same state they equal the host metrics of summary.json and an independent numpy

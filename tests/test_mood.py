@@ -211,7 +211,6 @@ def test_strong_r2_runs_to_the_end_with_positive_density(tmp_path):
     assert set(np.unique(ppd)) <= {0, 2} and (ppd == 0).any() and (ppd == 2).any()
 
 
-@pytest.mark.slow   # 25 s; CI time: test_differentiable's MOOD R1 gradient matches FD in the default suite
 def test_gradient_through_a_mood_run_is_finite():
     """d(sum of V rho u^2)/d(c0) through a few MOOD-limited Lagrangian SSP-RK3 steps of R1."""
     cfg = config.load(CONFIGS["r1"], ["case.n=40", "output.progress=false"])

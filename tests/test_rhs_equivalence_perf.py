@@ -280,11 +280,12 @@ def _hlo_instructions(compiled) -> int:
 
 
 def test_per_row_factor_is_computed_once_with_the_same_bits(monkeypatch):
-    """Decision 94: the per-row part of a block (factor, degree, z and grad z solves) runs inside
-    a conditional, so XLA's fusion cannot copy it into every consumer over the stencil planes.
-    The outputs are bit for bit those of the same code inlined (``per_row_once`` replaced by a
-    plain call), and the compiled 2D cubic block with the full derivative is much smaller (26,267
-    HLO instructions inlined, 12,469 with the conditional, XLA of jax 0.10)."""
+    """Decision 94: the unrolled factor of a row block (``cholesky_lists``: factor and pivot
+    flags) runs inside a conditional, so XLA's fusion cannot copy it into every consumer over the
+    stencil planes.  The outputs (with a per-row degree fallback) are bit for bit those of the
+    same code inlined (``per_row_once`` replaced by a plain call), and the compiled 2D cubic block
+    with the full derivative is much smaller (experiments/bench_mls_block.py, B = 1077, K = 38:
+    26,267 HLO instructions inlined, 12,480 with the conditional, XLA of jax 0.10)."""
     rng = np.random.default_rng(4)
     B, K = 300, 38
     dx = jnp.asarray(rng.uniform(-1.0, 1.0, (B, K, 2)) * 0.08)

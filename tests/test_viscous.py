@@ -208,9 +208,8 @@ def _shift_drift(p, scheme, domain):
     return np.asarray(shifting_velocity(jnp.ones_like(p.x), geom, p.kind, scheme, p.vol))
 
 
-# the default suite runs xu_smooth here, xu in the uniform-flow test (CI time)
-@pytest.mark.parametrize("law", [pytest.param("xu", marks=pytest.mark.slow),
-                                 pytest.param("fickian", marks=pytest.mark.slow), "xu_smooth"])
+# the default suite runs fickian and xu_smooth here, xu in the uniform-flow test (CI time)
+@pytest.mark.parametrize("law", [pytest.param("xu", marks=pytest.mark.slow), "fickian", "xu_smooth"])
 def test_shifting_drift_vanishes_on_a_lattice_and_restores_a_displaced_particle(law):
     """The shifting drift dw (rhs.shifting_velocity, architecture decision 24) is zero on a regular
     periodic lattice (by symmetry) and, for one particle pushed 0.3 dx off its lattice site,

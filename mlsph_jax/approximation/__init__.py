@@ -157,8 +157,13 @@ def block_rows(n: int, k: int) -> int:
     block, e.g. 2 x 1,517 rows for 2,500 particles at K = 27 (21 % of the pair sweep and the fit
     pass done twice); balanced, fewer rows than there are blocks (docs/performance.md,
     "Per-step overhead at 2,500 particles")."""
-    cap = max(1, min(n, BLOCK_SLOTS // max(k, 1)))
-    blocks = -(-n // cap)
+    return balanced_rows(n, max(1, min(n, BLOCK_SLOTS // max(k, 1))))
+
+
+def balanced_rows(n: int, cap: int) -> int:
+    """Rows per block for ``n`` rows in the fewest blocks of at most ``cap`` rows, balanced:
+    ceil(n / blocks) (:func:`block_rows`; at least 1, also for ``n = 0``)."""
+    blocks = max(1, -(-n // max(cap, 1)))
     return max(1, -(-n // blocks))
 
 
@@ -425,7 +430,7 @@ def _mls_operators(dx, h, vol, idx, mask, spec: ApproxSpec, coeffs_only: bool) -
         f = jax.vmap(functools.partial(mls.particle_operators, kernel=kern, degree=q,
                                        rcond=spec.rcond, derivative=spec.derivative,
                                        with_coeffs=spec.with_coeffs))
-        block = max(block_rows(n, k), min(n, VMAP_BLOCK_ROWS))
+        block = max(block_rows(n, k), balanced_rows(n, VMAP_BLOCK_ROWS))
     outputs = [((n, k), dx.dtype), ((n, k, d), dx.dtype), ((n,), jnp.int32)]
     if spec.with_coeffs:
         outputs.append(((n, m, k), dx.dtype))

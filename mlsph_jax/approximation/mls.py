@@ -42,7 +42,7 @@ Numerics
   inside a conditional (:func:`per_row_once`, docs/architecture.md decision 94).  XLA:CPU's
   fusion otherwise copies these cheap elementwise producers into every fused consumer over the
   [B, K] stencil planes, which multiplies the compiled program's size and its compile time; the
-  results are the same bits.
+  results were measured to be the same bits.
 """
 
 from __future__ import annotations
@@ -367,23 +367,32 @@ def per_row_once(fn, *operands):
     unrolled factor of a row block ([B, 1] arrays) was recomputed inside each fusion over the
     [B, K] stencil planes that reads it (a 2D cubic block with the full derivative: 26,267 HLO
     instructions, ~11 copies of the factor).  A conditional is not fused into its consumers, so
-    its results are computed once and read from memory.  Operands and results cross the
-    conditional stacked, one array per shape and dtype.  Both branches are ``fn`` and the
-    predicate is a traced value (never folded at compile time), so whichever branch runs, the
-    results are those of ``fn``, bit for bit, NaN included.  Under ``vmap`` with a batched
-    predicate JAX evaluates both branches (twice the work, the same results); the package calls
-    this on row blocks, never under ``vmap``.
+    its results are computed once and read from memory.  Operands (distinct arrays only: the
+    symmetric M holds each off-diagonal sum twice) and results cross the conditional stacked, one
+    array per shape and dtype.  Both branches are ``fn`` and the predicate is a traced value (not
+    folded at compile time), so whichever branch runs computes ``fn``; the outputs were measured
+    bit for bit equal to the inlined ``fn`` (all config fingerprints, tests/test_rhs_equivalence_
+    perf.py), which the moved fusion boundaries do not guarantee by construction.  Under ``vmap``
+    with a batched predicate JAX evaluates both branches (twice the work, the same results); the
+    package calls this on row blocks, never under ``vmap``.  On other backends than the CPU ``fn``
+    is called inline: a conditional on a GPU may read its predicate on the host, not measured here.
     """
-    leaves, tree = jax.tree.flatten(tuple(jnp.asarray(a) for a in operands))
+    if jax.default_backend() != "cpu":
+        return fn(*operands)
+    operands = tuple(jnp.asarray(a) if isinstance(a, (int, float)) else a for a in operands)
+    leaves, tree = jax.tree.flatten(operands)
     out_leaves, out_tree = jax.tree.flatten(jax.eval_shape(fn, *operands))
+    first_of = {}
+    unique = [first_of.setdefault(id(a), i) == i for i, a in enumerate(leaves)]
 
-    def groups(avals):
+    def groups(avals, keep):
         g = {}
         for i, a in enumerate(avals):
-            g.setdefault((a.shape, jnp.dtype(a.dtype)), []).append(i)
+            if keep[i]:
+                g.setdefault((a.shape, jnp.dtype(a.dtype)), []).append(i)
         return list(g.values())
 
-    in_groups, out_groups = groups(leaves), groups(out_leaves)
+    in_groups, out_groups = groups(leaves, unique), groups(out_leaves, [True] * len(out_leaves))
 
     def unstack(stacks, index_groups, n):
         flat = [None] * n
@@ -393,12 +402,14 @@ def per_row_once(fn, *operands):
         return flat
 
     def branch(*stacks):
-        out = jax.tree.leaves(fn(*jax.tree.unflatten(tree, unstack(stacks, in_groups, len(leaves)))))
+        flat = unstack(stacks, in_groups, len(leaves))
+        flat = [flat[first_of[id(a)]] for a in leaves]           # the duplicates
+        out = jax.tree.leaves(fn(*jax.tree.unflatten(tree, flat)))
         return tuple(jnp.stack([out[i] for i in idx]) for idx in out_groups)
 
     stacks = [jnp.stack([leaves[i] for i in idx]) for idx in in_groups]
-    first = jnp.ravel(stacks[0])[0]
-    res = jax.lax.cond(first == first, branch, branch, *stacks)
+    head = jnp.ravel(stacks[0])[:1]                                # (empty for B = 0)
+    res = jax.lax.cond(jnp.all(head == head), branch, branch, *stacks)
     return jax.tree.unflatten(out_tree, unstack(res, out_groups, len(out_leaves)))
 
 
