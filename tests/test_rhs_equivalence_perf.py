@@ -14,6 +14,7 @@ to the largest pair flux, since d(VU)/dt is a sum of nearly cancelling fluxes).
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import jax
 import jax.numpy as jnp
@@ -275,7 +276,6 @@ def test_batched_mls_operators_equal_reference(degree, derivative):
 
 
 def _hlo_instructions(compiled) -> int:
-    import re
     return len(re.findall(r"^\s*(ROOT\s+)?%?[\w.\-]+ = ", compiled.as_text(), re.M))
 
 

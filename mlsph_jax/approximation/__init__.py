@@ -157,12 +157,13 @@ def block_rows(n: int, k: int) -> int:
     block, e.g. 2 x 1,517 rows for 2,500 particles at K = 27 (21 % of the pair sweep and the fit
     pass done twice); balanced, fewer rows than there are blocks (docs/performance.md,
     "Per-step overhead at 2,500 particles")."""
-    return balanced_rows(n, max(1, min(n, BLOCK_SLOTS // max(k, 1))))
+    return balanced_rows(n, BLOCK_SLOTS // max(k, 1))
 
 
 def balanced_rows(n: int, cap: int) -> int:
-    """Rows per block for ``n`` rows in the fewest blocks of at most ``cap`` rows, balanced:
-    ceil(n / blocks) (:func:`block_rows`; at least 1, also for ``n = 0``)."""
+    """Rows per block for ``n`` rows in the fewest blocks of at most ``cap`` rows (at least one
+    row per block), balanced: ceil(n / blocks) (:func:`block_rows`; at least 1, also for
+    ``n = 0`` or ``cap = 0``)."""
     blocks = max(1, -(-n // max(cap, 1)))
     return max(1, -(-n // blocks))
 
