@@ -13,6 +13,16 @@ The cache lives in a fresh temporary folder made by the pytest process that star
 xdist controller, whose environment the workers and every subprocess inherit) and removed at its
 end, so every run starts cold and nothing outside the run is read or written.  A
 ``JAX_COMPILATION_CACHE_DIR`` already set by the user is used as it is and kept.
+
+The test run also compiles with XLA:CPU's elemental fusion emitters
+(``--xla_cpu_use_fusion_emitters=false`` appended to ``XLA_FLAGS``) instead of the MLIR fusion
+emitters that jaxlib 0.10 uses by default: the same HLO programs compile 25-40 % faster
+(docs/performance.md, "Test-suite time").  The code generator only changes how each fused loop is
+lowered, so results differ from a default-flag run by round-off (multiply-add contractions), never
+more: the one test that holds numbers recorded with the default flags to round-off,
+``tests/test_config_regression.py``, runs its configs in a subprocess with the user's own
+``XLA_FLAGS`` (kept in ``MLSPH_TEST_USER_XLA_FLAGS``).  ``MLSPH_TEST_USE_FUSION_EMITTERS=1`` keeps the default
+emitters for the whole run; an ``XLA_FLAGS`` that already names the option is left as it is.
 """
 
 from __future__ import annotations
@@ -23,6 +33,10 @@ import tempfile
 
 _ENV = "JAX_COMPILATION_CACHE_DIR"
 _made_here: str | None = None
+#: XLA_FLAGS as the user started the run (set once by the process that starts it; xdist workers
+#: and subprocesses inherit it).
+USER_XLA_FLAGS = "MLSPH_TEST_USER_XLA_FLAGS"
+_EMITTERS = "--xla_cpu_use_fusion_emitters=false"
 
 
 def pytest_configure(config):
@@ -30,6 +44,11 @@ def pytest_configure(config):
     if not os.environ.get(_ENV):
         _made_here = tempfile.mkdtemp(prefix="mlsph-jax-test-cache-")
         os.environ[_ENV] = _made_here
+    if USER_XLA_FLAGS not in os.environ:       # read by XLA when the backend starts, i.e. later
+        flags = os.environ.get("XLA_FLAGS", "")
+        os.environ[USER_XLA_FLAGS] = flags
+        if "xla_cpu_use_fusion_emitters" not in flags and os.environ.get("MLSPH_TEST_USE_FUSION_EMITTERS") != "1":
+            os.environ["XLA_FLAGS"] = f"{flags} {_EMITTERS}".strip()
     import jax
 
     jax.config.update("jax_compilation_cache_dir", os.environ[_ENV])

@@ -5,14 +5,22 @@ conservation drifts, MOOD statistics) to 1e-12 relative.
 The fingerprints in tests/data/ were recorded with ``experiments/record_config_metrics.py``
 before the code they guard was moved.  A change that is *meant* to change the numbers (a new
 default, a physics fix) re-records them in the same commit and says so in its message.
+
+The runs happen in one subprocess per test module (reduced) or config (full) with the user's own
+``XLA_FLAGS``: the rest of the suite compiles with other XLA:CPU fusion emitters (tests/conftest.py),
+which round differently, and 1e-12 is a round-off tolerance for the code generator the
+fingerprints were recorded with.
 """
 
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
-from mlsph_jax.testing import REDUCED_OVERRIDES, builtin_configs, fingerprint_differences, run_fingerprint
+from mlsph_jax.testing import REDUCED_OVERRIDES, builtin_configs, fingerprint_differences
 
 DATA = Path(__file__).parent / "data"
 REDUCED = json.loads((DATA / "config_fingerprints.json").read_text())
@@ -23,9 +31,39 @@ def test_every_builtin_config_has_a_fingerprint():
     assert sorted(REDUCED) == builtin_configs() == sorted(REDUCED_OVERRIDES)
 
 
+_FINGERPRINTS = """
+import json, sys, traceback
+from mlsph_jax.testing import REDUCED_OVERRIDES, run_fingerprint
+out = {}
+for name in sys.argv[2:]:
+    try:
+        out[name] = run_fingerprint(name, REDUCED_OVERRIDES[name] if sys.argv[1] == "reduced" else ())
+    except Exception:
+        out[name] = traceback.format_exc()
+print(json.dumps(out))
+"""
+
+
+def fingerprints_as_users_compile(size: str, names) -> dict:
+    """``{name: fingerprint, or the traceback of its failure}``, run in a subprocess with the
+    ``XLA_FLAGS`` the test run was started with (module docstring)."""
+    env = dict(os.environ)
+    env["XLA_FLAGS"] = os.environ.get("MLSPH_TEST_USER_XLA_FLAGS", os.environ.get("XLA_FLAGS", ""))
+    proc = subprocess.run([sys.executable, "-c", _FINGERPRINTS, size, *names], env=env,
+                          capture_output=True, text=True, timeout=1800)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+@pytest.fixture(scope="module")
+def reduced_fingerprints():
+    return fingerprints_as_users_compile("reduced", builtin_configs())
+
+
 @pytest.mark.parametrize("name", builtin_configs())
-def test_reduced_config_reproduces_its_fingerprint(name):
-    fp = run_fingerprint(name, REDUCED_OVERRIDES[name])
+def test_reduced_config_reproduces_its_fingerprint(name, reduced_fingerprints):
+    fp = reduced_fingerprints[name]
+    assert isinstance(fp, dict), fp
     assert fp["n_steps"] > 0
     assert fingerprint_differences(fp, REDUCED[name]) == []
 
@@ -49,7 +87,8 @@ def test_full_config_reproduces_its_fingerprint(name):
     if name in FULL_NOT_RECORDED:
         pytest.skip(f"no full-size fingerprint for {name}: {FULL_NOT_RECORDED[name]}")
     full = json.loads(FULL_PATH.read_text())
-    fp = run_fingerprint(name)
+    fp = fingerprints_as_users_compile("full", [name])[name]
+    assert isinstance(fp, dict), fp
     assert fingerprint_differences(fp, full[name]) == []
 
 

@@ -37,10 +37,15 @@ def test_gradients_match_finite_differences_smooth_case():
     g, fd = np.asarray(e["gradient"]), np.asarray(e["fd"])
     assert abs(g[1, 0]) > 0  # the moving plate drives the flow
     # tangential wall speeds; the wall-normal components (column 1) sit exactly on the kink of the
-    # Rusanov wave speed |u.n| at u.n = 0 (measured disagreement 3e-3 there): not differentiable,
-    # and the verdict says so, pointing at the kink
+    # Rusanov wave speed |u.n| at u.n = 0: not differentiable there, and which one-sided derivative
+    # reverse mode returns depends on the round-off that puts each u.n just above or below 0 (the
+    # compiler's multiply-add contractions: disagreement 2.3e-3, verdict "disagree" pointing at the
+    # kink, with XLA:CPU's default fusion emitters; 2.4e-4, within the "agree" bound, with the
+    # elemental ones the test suite compiles with, tests/conftest.py).  Either way the verdict must
+    # not blame anything else, and the difference stays that of a one-sided derivative.
     np.testing.assert_allclose(g[:, 0], fd[:, 0], rtol=1e-5)
-    assert e["verdict"] == "disagree" and 1e-4 < e["rel_difference"] < 1e-2 and "|u.n|" in e["hint"], e
+    assert e["rel_difference"] < 1e-2, e
+    assert e["verdict"] == "agree" or (e["verdict"] == "disagree" and "|u.n|" in e["hint"]), e
 
 
 def test_checkpointing_gives_the_same_gradient_over_1000_steps():

@@ -87,7 +87,8 @@ print("RESULT" + json.dumps(fields(res)))
 
 def _python(code: str, *args: str, devices: int = 1, background: bool = False):
     env = {**os.environ, "PYTHONPATH": str(ROOT), "JAX_PLATFORMS": "cpu",
-           "XLA_FLAGS": f"--xla_force_host_platform_device_count={devices}"}
+           # the test run's other flags (tests/conftest.py: its fusion emitters) plus the devices
+           "XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={devices}".strip()}
     cmd = [sys.executable, "-c", code, *args]
     if background:
         return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -450,7 +451,9 @@ def test_spatial_shards_with_unequal_halos_and_a_tie_for_the_limiting_particle()
     out = _python(THREE_SHARDS, devices=3)
     one, sp = out["index"], out["spatial"]
     assert sp[3] < sp[4]                                   # the halos differ: some shard is padded
-    assert (sp[0], sp[1]) == (one[0], one[1]) and one[0] > 1
+    # the same steps; the end time to round-off (the shards' programs have other shapes, so the
+    # compiler may contract the CFL reduction's multiply-adds differently: 1 ulp seen)
+    assert sp[0] == one[0] and one[0] > 1 and sp[1] == pytest.approx(one[1], rel=1e-14, abs=0)
     q1, q3 = np.asarray(one[2]), np.asarray(sp[2])
     np.testing.assert_allclose(q3, q1, rtol=0, atol=1e-13 * np.abs(q1).max())
     assert out["spatial_failure"] == out["index_failure"] and out["index_failure"][1] >= 0
