@@ -32,7 +32,8 @@ def test_every_builtin_config_has_a_fingerprint():
 
 
 _FINGERPRINTS = """
-import json, sys, traceback
+import json, sys, traceback, warnings
+warnings.filterwarnings("error", category=RuntimeWarning, module="mlsph_jax")   # as pyproject's pytest filter
 from mlsph_jax.testing import REDUCED_OVERRIDES, run_fingerprint
 out = {}
 for name in sys.argv[2:]:
@@ -40,7 +41,7 @@ for name in sys.argv[2:]:
         out[name] = run_fingerprint(name, REDUCED_OVERRIDES[name] if sys.argv[1] == "reduced" else ())
     except Exception:
         out[name] = traceback.format_exc()
-print(json.dumps(out))
+print("FINGERPRINTS " + json.dumps(out))
 """
 
 
@@ -51,13 +52,17 @@ def fingerprints_as_users_compile(size: str, names) -> dict:
     env["XLA_FLAGS"] = os.environ.get("MLSPH_TEST_USER_XLA_FLAGS", os.environ.get("XLA_FLAGS", ""))
     proc = subprocess.run([sys.executable, "-c", _FINGERPRINTS, size, *names], env=env,
                           capture_output=True, text=True, timeout=1800)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("FINGERPRINTS ")]
+    assert proc.returncode == 0 and len(lines) == 1, (proc.stdout[-1000:], proc.stderr[-3000:])
+    return json.loads(lines[0].removeprefix("FINGERPRINTS "))
 
 
 @pytest.fixture(scope="module")
-def reduced_fingerprints():
-    return fingerprints_as_users_compile("reduced", builtin_configs())
+def reduced_fingerprints(request):
+    """The selected configs' reduced fingerprints, all from one subprocess."""
+    names = sorted({item.callspec.params["name"] for item in request.session.items
+                    if getattr(item, "originalname", "") == "test_reduced_config_reproduces_its_fingerprint"})
+    return fingerprints_as_users_compile("reduced", names or builtin_configs())
 
 
 @pytest.mark.parametrize("name", builtin_configs())

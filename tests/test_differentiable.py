@@ -39,13 +39,16 @@ def test_gradients_match_finite_differences_smooth_case():
     # tangential wall speeds; the wall-normal components (column 1) sit exactly on the kink of the
     # Rusanov wave speed |u.n| at u.n = 0: not differentiable there, and which one-sided derivative
     # reverse mode returns depends on the round-off that puts each u.n just above or below 0 (the
-    # compiler's multiply-add contractions: disagreement 2.3e-3, verdict "disagree" pointing at the
-    # kink, with XLA:CPU's default fusion emitters; 2.4e-4, within the "agree" bound, with the
-    # elemental ones the test suite compiles with, tests/conftest.py).  Either way the verdict must
-    # not blame anything else, and the difference stays that of a one-sided derivative.
+    # compiler's multiply-add contractions).  Measured: with XLA:CPU's default fusion emitters the
+    # moving wall's normal entry disagrees with the central difference by 2.3e-3 (rel_difference
+    # 4.4e-4 over the array: verdict "disagree", second FD step taken, hint naming the kink); with
+    # the elemental emitters the test suite compiles with (tests/conftest.py) by 2.4e-4
+    # (rel_difference 4.7e-5: "agree").  So: each normal entry within a one-sided derivative's
+    # 1e-2 of the FD, and a "disagree" must come with the second step and name the kink.
     np.testing.assert_allclose(g[:, 0], fd[:, 0], rtol=1e-5)
-    assert e["rel_difference"] < 1e-2, e
-    assert e["verdict"] == "agree" or (e["verdict"] == "disagree" and "|u.n|" in e["hint"]), e
+    np.testing.assert_allclose(g[:, 1], fd[:, 1], rtol=1e-2)
+    assert e["verdict"] == "agree" or (e["verdict"] == "disagree" and "fd_10_step" in e
+                                       and "|u.n|" in e["hint"]), e
 
 
 def test_checkpointing_gives_the_same_gradient_over_1000_steps():
