@@ -21,8 +21,9 @@ of them run up to ~40 % faster (docs/performance.md, "Test-suite time"). The cod
 changes how each fused loop is lowered, so results differ from a default-flag run by round-off
 (multiply-add contractions), which branches (a kink, a MOOD flag, a step count) and chaotic runs
 can amplify: the one test that holds numbers recorded with the default flags to round-off,
-``tests/test_config_regression.py``, runs its configs in a subprocess with the user's own
-``XLA_FLAGS`` (kept in ``MLSPH_TEST_USER_XLA_FLAGS``). ``MLSPH_TEST_USE_FUSION_EMITTERS=1`` keeps
+``tests/test_config_regression.py``, runs the configs whose round-off it amplifies beyond its
+tolerance in a subprocess with the user's own ``XLA_FLAGS`` (kept in
+``MLSPH_TEST_USER_XLA_FLAGS``; decision 96). ``MLSPH_TEST_USE_FUSION_EMITTERS=1`` keeps
 the default emitters for the whole run; an ``XLA_FLAGS`` that already names the option is left as
 it is.
 """
