@@ -3,7 +3,8 @@ of every built-in config, reduced (the default-suite regression) or at full size
 
     python experiments/record_config_metrics.py                 # reduced runs -> stdout JSON
     python experiments/record_config_metrics.py --full --out F  # full configs
-    python experiments/record_config_metrics.py --compare F     # rerun and compare with F
+    python experiments/record_config_metrics.py --compare F     # rerun and compare with F (prints how
+                                                                # much of the 1e-12 tolerance each config uses)
     python experiments/record_config_metrics.py --only A B --update F   # intentional change of A, B
 
 The reduced fingerprints are stored in tests/data/config_fingerprints.json and checked by
@@ -17,7 +18,13 @@ import json
 import sys
 import time
 
-from mlsph_jax.testing import REDUCED_OVERRIDES, builtin_configs, fingerprint_differences, run_fingerprint
+from mlsph_jax.testing import (
+    REDUCED_OVERRIDES,
+    builtin_configs,
+    fingerprint_differences,
+    fingerprint_margin,
+    run_fingerprint,
+)
 
 
 def main(argv=None) -> int:
@@ -44,7 +51,11 @@ def main(argv=None) -> int:
         if ref is not None:
             diff = fingerprint_differences(fp, ref[name]) if name in ref else ["not in the reference"]
             failed += bool(diff)
-            line += "  " + ("same" if not diff else "DIFFERENT: " + "; ".join(diff))
+            if not diff:
+                margin, where = fingerprint_margin(fp, ref[name])
+                line += f"  same (largest difference {margin:.2g} of the tolerance{', ' + where if where else ''})"
+            else:
+                line += "  DIFFERENT: " + "; ".join(diff)
         print(line, file=sys.stderr, flush=True)
     if args.update:
         with open(args.update) as f:

@@ -94,6 +94,26 @@ def fingerprint_differences(new: Mapping, ref: Mapping, rtol: float = 1e-12, ato
     return problems
 
 
+def fingerprint_margin(new: Mapping, ref: Mapping, rtol: float = 1e-12, atol: float = 1e-13) -> tuple[float, str]:
+    """The largest difference between two fingerprints' numbers as a fraction of the tolerance of
+    :func:`fingerprint_differences` (``|x - y| / (atol + rtol |y|)``; above 1 it reports the entry)
+    and the entry where it occurs: how close an agreeing config is to its tolerance."""
+    worst, where = 0.0, ""
+    for group in ("metrics", "conservation", "mood"):
+        a, b = new.get(group, {}), ref.get(group, {})
+        for k in sorted(set(a) & set(b)):
+            x, y = a[k], b[k]
+            if math.isnan(x) or math.isnan(y):
+                continue
+            r = abs(x - y) / (atol + rtol * abs(y))
+            if r > worst:
+                worst, where = r, f"{group}.{k}"
+    t, tr = new.get("t_final"), ref.get("t_final")
+    if t is not None and tr is not None and tr != 0 and abs(t - tr) / (rtol * abs(tr)) > worst:
+        worst, where = abs(t - tr) / (rtol * abs(tr)), "t_final"
+    return worst, where
+
+
 # --------------------------------------------------------------------------------------------
 # particle layouts
 # --------------------------------------------------------------------------------------------
