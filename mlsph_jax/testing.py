@@ -69,6 +69,15 @@ def run_fingerprint(config: str | Path, overrides: Sequence[str] = ()) -> dict:
             "mood": _floats(s.get("mood", {}))}
 
 
+def _compared_entries(new: Mapping, ref: Mapping):
+    """``(entry, new value, reference value)`` for every number both fingerprints hold in their
+    ``metrics``, ``conservation`` and ``mood`` groups."""
+    for group in ("metrics", "conservation", "mood"):
+        a, b = new.get(group, {}), ref.get(group, {})
+        for k in sorted(set(a) & set(b)):
+            yield f"{group}.{k}", a[k], b[k]
+
+
 def fingerprint_differences(new: Mapping, ref: Mapping, rtol: float = 1e-12, atol: float = 1e-13) -> list[str]:
     """Entries of two fingerprints that differ by more than ``atol + rtol |ref|`` (empty: equal).
 
@@ -82,12 +91,11 @@ def fingerprint_differences(new: Mapping, ref: Mapping, rtol: float = 1e-12, ato
         a, b = new.get(group, {}), ref.get(group, {})
         if set(a) != set(b):
             problems.append(f"{group} keys differ: {sorted(set(a) ^ set(b))}")
-        for k in sorted(set(a) & set(b)):
-            x, y = a[k], b[k]
-            if math.isnan(x) and math.isnan(y):
-                continue
-            if not abs(x - y) <= atol + rtol * abs(y):
-                problems.append(f"{group}.{k}: {x!r} != {y!r} (relative {abs(x - y) / max(abs(y), 1e-300):.2e})")
+    for entry, x, y in _compared_entries(new, ref):
+        if math.isnan(x) and math.isnan(y):
+            continue
+        if not abs(x - y) <= atol + rtol * abs(y):
+            problems.append(f"{entry}: {x!r} != {y!r} (relative {abs(x - y) / max(abs(y), 1e-300):.2e})")
     t, tr = new.get("t_final"), ref.get("t_final")
     if t is None or tr is None or abs(t - tr) > rtol * abs(tr):
         problems.append(f"t_final: {t} != {tr}")
@@ -99,15 +107,9 @@ def fingerprint_margin(new: Mapping, ref: Mapping, rtol: float = 1e-12, atol: fl
     :func:`fingerprint_differences` (``|x - y| / (atol + rtol |y|)``; above 1 it reports the entry)
     and the entry where it occurs: how close an agreeing config is to its tolerance."""
     worst, where = 0.0, ""
-    for group in ("metrics", "conservation", "mood"):
-        a, b = new.get(group, {}), ref.get(group, {})
-        for k in sorted(set(a) & set(b)):
-            x, y = a[k], b[k]
-            if math.isnan(x) or math.isnan(y):
-                continue
-            r = abs(x - y) / (atol + rtol * abs(y))
-            if r > worst:
-                worst, where = r, f"{group}.{k}"
+    for entry, x, y in _compared_entries(new, ref):
+        if not (math.isnan(x) or math.isnan(y)) and abs(x - y) / (atol + rtol * abs(y)) > worst:
+            worst, where = abs(x - y) / (atol + rtol * abs(y)), entry
     t, tr = new.get("t_final"), ref.get("t_final")
     if t is not None and tr is not None and tr != 0 and abs(t - tr) / (rtol * abs(tr)) > worst:
         worst, where = abs(t - tr) / (rtol * abs(tr)), "t_final"

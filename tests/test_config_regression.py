@@ -32,6 +32,7 @@ import traceback
 from pathlib import Path
 
 import pytest
+from conftest import USER_XLA_FLAGS
 
 from mlsph_jax.testing import (
     REDUCED_OVERRIDES,
@@ -75,7 +76,7 @@ def fingerprints_as_users_compile(size: str, names) -> dict:
     """``{name: fingerprint, or the traceback of its failure}``, run in a subprocess with the
     ``XLA_FLAGS`` the test run was started with (module docstring)."""
     env = dict(os.environ)
-    env["XLA_FLAGS"] = os.environ.get("MLSPH_TEST_USER_XLA_FLAGS", os.environ.get("XLA_FLAGS", ""))
+    env["XLA_FLAGS"] = os.environ.get(USER_XLA_FLAGS, os.environ.get("XLA_FLAGS", ""))
     proc = subprocess.run([sys.executable, "-c", _FINGERPRINTS, size, *names], env=env,
                           capture_output=True, text=True, timeout=1800)
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("FINGERPRINTS ")]
