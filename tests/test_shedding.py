@@ -275,9 +275,8 @@ def test_builtin_re185_config_sheds_and_meets_table_4_2():
     t_end = 150, statistics over the whole lift periods after t = 100): the wake sheds (>= 5 whole
     periods, amplitude settled to 5 %); against Table 4.2 (St 0.1937 +- 3 %, mean C_D 1.3398 +- 3 %,
     C_L rms 0.4447 +- 10 %) a missed target is reported as an expected failure with the measured
-    values.  The same run on 2026-11-26 (``--set case.re=185`` on cylinder_re100.toml, first ring
-    cubic, before decision 75; 28.9 min at load 4.7-7.3): 7 periods, drift 0.01 %, St 0.1632, mean
-    C_D 1.191, C_L rms 0.247: all three missed (docs/validation.md "Re = 185"; at n_theta = 80 C_D
-    and C_L rms are met)."""
+    values.  Measured (docs/validation.md "Re = 185"; 2026-11-27, 21,619 steps, 11.7 min at load
+    1.4-3.3): 7 periods, drift 0.02 %, St 0.1633, mean C_D 1.1888, C_L rms 0.2439: all three missed
+    (-15.7 %, -11.3 %, -45.1 %; at n_theta = 80 C_D and C_L rms are met)."""
     m = _builtin_shedding_metrics("cylinder_re185")
     _xfail_missed_targets(m, RE185_TARGETS, "at n_theta = 48")
