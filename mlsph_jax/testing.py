@@ -31,6 +31,9 @@ REDUCED_OVERRIDES: dict[str, tuple[str, ...]] = {
     # outputs, so it also holds that sampling between outputs leaves the run unchanged
     "cylinder_re100": ("case.n_theta=32", "case.r_far=4.0", "time.t_end=0.2", "output.snapshots=1",
                        "output.series_interval=0.1", "output.degree_fallback_warn=0.1"),
+    # the same reduction of the Re = 185 config (the Re = 100 config's layout and scheme)
+    "cylinder_re185": ("case.n_theta=32", "case.r_far=4.0", "time.t_end=0.2", "output.snapshots=1",
+                       "output.series_interval=0.1", "output.degree_fallback_warn=0.1"),
     "lid_driven_cavity": ("case.n=12", "time.t_end=0.3", "output.snapshots=3"),
     "poiseuille": ("case.ny=10", "case.nx=8", "time.t_end=0.2", "output.snapshots=2"),
     "riemann_r1_tait": ("case.n=50", "time.t_end=5e-6"),

@@ -1,7 +1,7 @@
 """Vortex shedding behind the cylinder (issue 17 items 5 and 7; thesis §4.5.3, Table 4.2): the
 whole-period statistics of :mod:`mlsph_jax.periodic` on signals with known frequency, amplitude
 and mean, the symmetry-breaking trigger of the ``cylinder`` case, its bad input, and (slow) the
-built-in unsteady config against the Table 4.2 targets."""
+built-in unsteady configs (Re = 100 and 185) against the Table 4.2 targets."""
 
 from __future__ import annotations
 
@@ -230,6 +230,26 @@ def test_cylinder_statistics_and_the_run_hook():
 RE100_TARGETS = {"cd_mean": (1.35, 0.03), "cl_amplitude": (0.33, 0.10), "st": (0.165, 0.03)}
 
 
+def _builtin_shedding_metrics(name: str) -> dict:
+    """Run the built-in config ``name`` as shipped; assert it sheds (>= 5 whole periods after its
+    transient, the C_L amplitude settled to 5 % over them) and return its statistics' metrics."""
+    from mlsph_jax.simulation import run_problem
+
+    cfg = config_mod.load(CONFIG_DIR / f"{name}.toml", ["output.plots=false", "output.progress=false"])
+    s = run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True).summary
+    stats = s["series_statistics"]
+    assert "metrics" in stats, stats
+    m = stats["metrics"]
+    assert m["n_periods"] >= 5 and abs(stats["cl_amplitude_drift"]) < 0.05, stats
+    return m
+
+
+def _xfail_missed_targets(m: dict, targets: dict, where: str) -> None:
+    missed = {k: (m[k], v) for k, v in targets.items() if abs(m[k] - v[0]) > v[1] * v[0]}
+    if missed:
+        pytest.xfail(f"Table 4.2 targets missed {where} (issue 17 open): {missed}")
+
+
 @pytest.mark.slow
 def test_builtin_re100_config_sheds_and_meets_table_4_2():
     """configs/cylinder_re100.toml as shipped (48 on the body, 1,920 particles, far field at 40 D,
@@ -240,14 +260,23 @@ def test_builtin_re100_config_sheds_and_meets_table_4_2():
     with the measured values.  Measured with rcond 0.01, before decision 75 (docs/validation.md
     "Vortex shedding"; 21,011 steps, 28.6 min at load 3.4-5.8): 6 periods, drift 2.5 %, St 0.1407,
     mean C_D 1.2455, C_L amplitude 0.1960: all three missed (the wake at n_theta = 48 behaves like Re ~ 70)."""
-    from mlsph_jax.simulation import run_problem
+    m = _builtin_shedding_metrics("cylinder_re100")
+    _xfail_missed_targets(m, RE100_TARGETS, "at n_theta = 48")
 
-    cfg = config_mod.load(CONFIG_DIR / "cylinder_re100.toml", ["output.plots=false", "output.progress=false"])
-    s = run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True).summary
-    stats = s["series_statistics"]
-    assert "metrics" in stats, stats
-    m = stats["metrics"]
-    assert m["n_periods"] >= 5 and abs(stats["cl_amplitude_drift"]) < 0.05, stats
-    missed = {k: (m[k], v) for k, v in RE100_TARGETS.items() if abs(m[k] - v[0]) > v[1] * v[0]}
-    if missed:
-        pytest.xfail(f"Table 4.2 targets missed at n_theta = 48 (issue 17 open): {missed}")
+
+#: Thesis Table 4.2 at Re = 185 (present method; C_L as its rms there) with issue 17's tolerances
+#: ("Re = 185 against Table 4.2 likewise"): metric -> (value, relative tolerance).
+RE185_TARGETS = {"cd_mean": (1.3398, 0.03), "cl_rms": (0.4447, 0.10), "st": (0.1937, 0.03)}
+
+
+@pytest.mark.slow
+def test_builtin_re185_config_sheds_and_meets_table_4_2():
+    """configs/cylinder_re185.toml as shipped (cylinder_re100's layout and scheme at Re = 185,
+    t_end = 150, statistics over the whole lift periods after t = 100): the wake sheds (>= 5 whole
+    periods, amplitude settled to 5 %); against Table 4.2 (St 0.1937 +- 3 %, mean C_D 1.3398 +- 3 %,
+    C_L rms 0.4447 +- 10 %) a missed target is reported as an expected failure with the measured
+    values.  Measured (docs/validation.md "Re = 185"; 2026-11-27, 21,619 steps, 11.7 min at load
+    1.4-3.3): 7 periods, drift 0.02 %, St 0.1633, mean C_D 1.1888, C_L rms 0.2439: all three missed
+    (-15.7 %, -11.3 %, -45.1 %; at n_theta = 80 C_D and C_L rms are met)."""
+    m = _builtin_shedding_metrics("cylinder_re185")
+    _xfail_missed_targets(m, RE185_TARGETS, "at n_theta = 48")
