@@ -51,12 +51,13 @@ def test_gradients_match_finite_differences_smooth_case():
                                        and "|u.n|" in e["hint"]), e
 
 
-# CI time (48 s, the default suite's second-slowest test): "nested" is make_simulate's default
-# checkpointing, so every FD-checked run gradient of the default suite goes through it
-# (test_gradients_match_finite_differences_smooth_case, test_gradient_wrt_initial_fields_and_positions,
-# test_time_average_objectives); "none" runs in test_flux_hllc's and test_diffrax_path's gradients,
-# "step" in test_forward_mode_and_vjp_agree_with_reverse_mode.  Their equality to 1e-12 over
-# 1,000 steps (issue 15) is this slow test.
+# CI time (48 s, the default suite's second-slowest test).  In the default suite each mode is
+# checked on its own: "nested" (make_simulate's and sensitivity's default) against central
+# differences in this file's FD tests and test_time_average_objectives.py's
+# test_couette_windowed_ke_mean_matches_host_and_finite_differences, "none" in test_flux_hllc's FD
+# test and test_diffrax_path's gradient, "step" against forward mode to 1e-10 in
+# test_forward_mode_and_vjp_agree_with_reverse_mode.  No default test compares two modes with each
+# other at round-off any more: "none" = "nested" to 1e-12 over 1,000 steps (issue 15) is this slow test.
 @pytest.mark.slow
 def test_checkpointing_gives_the_same_gradient_over_1000_steps():
     pb = couette_problem(ny=6, nx=4, t_end=0.5)

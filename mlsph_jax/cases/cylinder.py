@@ -66,7 +66,7 @@ Steady state.  The run stops once the velocity field changes by less than ``stea
 time relative to its maximum between two output times (the cavity's residual,
 :class:`~mlsph_jax.simulation.Problem` ``steady_tol``), or at ``time.t_end``.
 
-Vortex shedding (Re >~ 47; thesis §4.5.3, Table 4.2; configs ``cylinder_re100``). The layout (rings
+Vortex shedding (Re >~ 47; thesis §4.5.3, Table 4.2; configs ``cylinder_re100``, ``cylinder_re185``). The layout (rings
 at the body's quadrature angles, symmetric about y = 0), the impulsive start and the scheme are
 mirror-symmetric to round-off, so without a trigger the wake stays symmetric for as long as
 round-off needs to grow into the shedding mode (measured: |C_L| < 1.5e-13 to t = 84 at Re = 100).
