@@ -18,6 +18,13 @@ from .config.builtin import CONFIG_DIR, builtin_configs  # noqa: F401  (re-expor
 
 #: Per built-in config, the ``--set`` overrides of its reduced regression run: the same scheme
 #: and case on fewer particles and a shorter time, a few seconds each (``tests/test_config_regression.py``).
+#: The reduction of the two shedding configs (cylinder_re100, cylinder_re185: one layout and scheme).
+#: The reduced layout has 8.3 % of its particles (its first ring) on a quadratic fit (the shipped one
+#: 2.8 %).  One output and a series every 0.1: the step targets (0.1, 0.2) of the fingerprint recorded
+#: with two outputs, so it also holds that sampling between outputs leaves the run unchanged.
+_REDUCED_SHEDDING = ("case.n_theta=32", "case.r_far=4.0", "time.t_end=0.2", "output.snapshots=1",
+                     "output.series_interval=0.1", "output.degree_fallback_warn=0.1")
+
 REDUCED_OVERRIDES: dict[str, tuple[str, ...]] = {
     "blast_2d": ("case.dx=8e-3", "time.t_end=5e-6"),
     "couette": ("case.ny=10", "case.nx=8", "time.t_end=0.2", "output.snapshots=2"),
@@ -26,14 +33,8 @@ REDUCED_OVERRIDES: dict[str, tuple[str, ...]] = {
     # expected, not warned; as below
     "cylinder": ("case.n_theta=32", "case.r_far=3.0", "time.t_end=0.2", "output.snapshots=2",
                  "output.degree_fallback_warn=0.15"),
-    # the reduced layout has 8.3 % of its particles (its first ring) on a quadratic fit (the shipped one 2.8 %).
-    # One output and a series every 0.1: the step targets (0.1, 0.2) of the fingerprint recorded with two
-    # outputs, so it also holds that sampling between outputs leaves the run unchanged
-    "cylinder_re100": ("case.n_theta=32", "case.r_far=4.0", "time.t_end=0.2", "output.snapshots=1",
-                       "output.series_interval=0.1", "output.degree_fallback_warn=0.1"),
-    # the same reduction of the Re = 185 config (the Re = 100 config's layout and scheme)
-    "cylinder_re185": ("case.n_theta=32", "case.r_far=4.0", "time.t_end=0.2", "output.snapshots=1",
-                       "output.series_interval=0.1", "output.degree_fallback_warn=0.1"),
+    "cylinder_re100": _REDUCED_SHEDDING,
+    "cylinder_re185": _REDUCED_SHEDDING,
     "lid_driven_cavity": ("case.n=12", "time.t_end=0.3", "output.snapshots=3"),
     "poiseuille": ("case.ny=10", "case.nx=8", "time.t_end=0.2", "output.snapshots=2"),
     "riemann_r1_tait": ("case.n=50", "time.t_end=5e-6"),
