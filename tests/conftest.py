@@ -14,6 +14,15 @@ xdist controller, whose environment the workers and every subprocess inherit) an
 end, so every run starts cold and nothing outside the run is read or written.  A
 ``JAX_COMPILATION_CACHE_DIR`` already set by the user is used as it is and kept.
 
+The default (not ``slow``) test run also compiles at LLVM optimisation level 0
+(``--xla_backend_optimization_level=0``; decision 98): the suite is mostly compilation of short
+runs, and without LLVM's optimisation passes it takes ~36 % less time (905 -> 582 s on two
+workers, docs/performance.md "Test-suite time"), while the few run-dominated tests get up to
+1.6x slower.  A run that selects the ``slow`` tests (``-m slow``, run-dominated) keeps the
+default level; ``MLSPH_TEST_BACKEND_OPTIMIZATION=default`` keeps it for any run.  Both settings
+only change how XLA lowers the same HLO, so results differ by round-off: the tests compare two
+different programs to round-off, not bit for bit.
+
 The test run also compiles with XLA:CPU's elemental fusion emitters
 (``--xla_cpu_use_fusion_emitters=false`` appended to ``XLA_FLAGS``) instead of the MLIR fusion
 emitters that jaxlib 0.10 uses by default: the same HLO programs, and test files that compile many
@@ -40,6 +49,14 @@ _made_here: str | None = None
 #: and subprocesses inherit it).
 USER_XLA_FLAGS = "MLSPH_TEST_USER_XLA_FLAGS"
 _EMITTERS = "--xla_cpu_use_fusion_emitters=false"
+_BACKEND_O0 = "--xla_backend_optimization_level=0"
+
+
+def _selects_slow_tests(config) -> bool:
+    """Whether the run's marker expression may select ``slow`` tests (pyproject's default
+    ``-m 'not slow'`` does not; ``-m slow`` or ``-m ''`` do)."""
+    expr = (config.getoption("markexpr", "") or "").replace(" ", "")
+    return "notslow" not in expr
 
 
 def pytest_configure(config):
@@ -51,7 +68,11 @@ def pytest_configure(config):
         flags = os.environ.get("XLA_FLAGS", "")
         os.environ[USER_XLA_FLAGS] = flags
         if "xla_cpu_use_fusion_emitters" not in flags and os.environ.get("MLSPH_TEST_USE_FUSION_EMITTERS") != "1":
-            os.environ["XLA_FLAGS"] = f"{flags} {_EMITTERS}".strip()
+            flags = f"{flags} {_EMITTERS}".strip()
+        if ("xla_backend_optimization_level" not in flags and not _selects_slow_tests(config)
+                and os.environ.get("MLSPH_TEST_BACKEND_OPTIMIZATION") != "default"):
+            flags = f"{flags} {_BACKEND_O0}".strip()
+        os.environ["XLA_FLAGS"] = flags
     import jax
 
     jax.config.update("jax_compilation_cache_dir", os.environ[_ENV])

@@ -246,8 +246,10 @@ def test_taylor_green_50_lagrangian_frame_to_t1():
 
 def test_verlet_skin_lists_give_the_trajectory_of_per_stage_rebuilds():
     """The driver's chunk restricts a Verlet-skin candidate list to each stage's stencil instead of
-    rebuilding the list (issue 15): the same stencils in the same slots, hence bit for bit the
-    trajectory of per-stage rebuilds (shifting frame, 12 x 12 Taylor-Green, 30 steps).  A skin of
+    rebuilding the list (issue 15): the same stencils in the same slots, hence the trajectory of
+    per-stage rebuilds (shifting frame, 12 x 12 Taylor-Green, 30 steps) bit for bit under XLA:CPU's
+    default code generator, and to round-off in the test run's (decision 98; a stencil that differed
+    would change the trajectory by far more).  A skin of
     0.02 support h (the driver's is 0.3) makes the candidates go stale every step or two, so
     the rebuild test is exercised: without rebuilds the trajectory differs."""
     from mlsph_jax.integrate import StepControl, initial_carry, make_chunk
@@ -265,9 +267,11 @@ def test_verlet_skin_lists_give_the_trajectory_of_per_stage_rebuilds():
     moved = float(jnp.sqrt(jnp.max(jnp.sum((a.particles.x - pb.particles.x) ** 2, axis=1))))
     skin = 0.02 * pb.scheme.support * pb.scheme.beta * float(jnp.sqrt(pb.particles.vol).max())
     assert moved > 5 * skin, (moved, skin)          # the candidates were rebuilt many times
-    for f in ("x", "vol", "q", "ppd"):
-        np.testing.assert_array_equal(np.asarray(getattr(a.particles, f)), np.asarray(getattr(b.particles, f)))
-    assert float(a.t) == float(b.t) and int(b.status) == 0
+    for f in ("x", "vol", "q"):
+        ref = np.asarray(getattr(a.particles, f))
+        np.testing.assert_allclose(np.asarray(getattr(b.particles, f)), ref, rtol=0, atol=1e-13 * np.abs(ref).max())
+    np.testing.assert_array_equal(np.asarray(a.particles.ppd), np.asarray(b.particles.ppd))
+    assert float(a.t) == pytest.approx(float(b.t), rel=1e-13) and int(b.status) == 0   # dt from the CFL
 
 
 @pytest.mark.slow   # 40-94 s (CI time); the default suite runs geometry_update = "step" in the
@@ -394,7 +398,8 @@ def test_eulerian_lists_get_their_largest_count_and_the_same_right_hand_side():
     particles need (K = 31 instead of 41 at N = 4e4; moving particles keep theirs, see the test
     below).  The right-hand side on that tight list
     equals the one on a list padded to the old headroom 1.3 (padding slots are masked; measured
-    bitwise), and one slot fewer overflows (the capacity is the smallest that holds the list)."""
+    bitwise with the default code generator, to 1e-13 of its scale in the test run: decision 98),
+    and one slot fewer overflows (the capacity is the smallest that holds the list)."""
     n = 16
     pb, x, vol, _ = _uniform_problem(n, ["scheme.frame=eulerian", "scheme.reconstruction_degree=2"])
     rng = np.random.default_rng(5)
@@ -415,7 +420,7 @@ def test_eulerian_lists_get_their_largest_count_and_the_same_right_hand_side():
     out = [f(nl) for nl in (setup.nl, padded)]
     for a, b in zip(out[0], out[1], strict=True):
         b = np.asarray(b)
-        np.testing.assert_allclose(np.asarray(a), b, rtol=0, atol=1e-14 * max(np.abs(b).max(), 1e-300))
+        np.testing.assert_allclose(np.asarray(a), b, rtol=0, atol=1e-13 * max(np.abs(b).max(), 1e-300))
 
 
 @pytest.mark.slow   # 23 s; CI time: the Verlet-skin test runs the minimal moving headroom in the default suite

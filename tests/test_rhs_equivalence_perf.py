@@ -282,8 +282,10 @@ def _hlo_instructions(compiled) -> int:
 def test_per_row_factor_is_computed_once_with_the_same_bits(monkeypatch):
     """Decision 94: the unrolled factor of a row block (``cholesky_lists``: factor and pivot
     flags) runs inside a conditional, so XLA's fusion cannot copy it into every consumer over the
-    stencil planes.  The outputs (with a per-row degree fallback) are bit for bit those of the
-    same code inlined (``per_row_once`` replaced by a plain call), and the compiled 2D cubic block
+    stencil planes.  The outputs (with a per-row degree fallback) are those of the same code inlined
+    (``per_row_once`` replaced by a plain call): bit for bit with XLA:CPU's default code generator,
+    to round-off of the ill-conditioned cubic moments (7.6e-12 relative at LLVM O0, which the
+    default test run compiles with, decision 98) here, and the compiled 2D cubic block
     with the full derivative is much smaller (experiments/bench_mls_block.py, B = 1077, K = 38:
     26,267 HLO instructions inlined, 12,480 with the conditional, XLA of jax 0.10)."""
     rng = np.random.default_rng(4)
@@ -304,7 +306,11 @@ def test_per_row_factor_is_computed_once_with_the_same_bits(monkeypatch):
         inlined = jax.jit(lambda *a: block(*a)).lower(dx, mask, h).compile()   # (a new trace)
         ref = inlined(dx, mask, h)
     for a, b in zip(out, ref, strict=True):
-        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        a, b = np.asarray(a), np.asarray(b)
+        if b.dtype.kind == "f":
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-10 * max(np.abs(b).max(), 1e-300))
+        else:
+            np.testing.assert_array_equal(a, b)          # degrees and pivot flags: exactly
     n_once, n_inlined = _hlo_instructions(once), _hlo_instructions(inlined)
     assert n_once < 0.7 * n_inlined, (n_once, n_inlined)
 
@@ -492,8 +498,11 @@ def test_diffusive_terms_in_the_pair_sweep_equal_the_separate_pass(change):
     old = jax.jit(ref)(particles, params, geom)
     assert float(jnp.abs(old[3]).max()) > 1e-3          # the diffusive terms are not negligible
     close(new[2], old[2], scale=float(jnp.abs(old[2]).max() + jnp.abs(old[3]).max()))
-    np.testing.assert_array_equal(np.asarray(new[0]), np.asarray(old[0]))
-    np.testing.assert_array_equal(np.asarray(new[1]), np.asarray(old[1]))
+    # the frame velocity and the volume rate do not involve the diffusive terms: the same arithmetic,
+    # but in two programs whose fusions the code generator may round differently (a 1.3e-13
+    # relative difference of the volume rate on an AVX/FMA CPU without AVX2), so to round-off
+    close(new[0], old[0])
+    close(new[1], old[1])
 
 
 def test_a_reconstruction_without_fits_extra_takes_the_separate_diffusive_pass():

@@ -267,7 +267,8 @@ def test_driver_regrows_the_limit_the_cause_names(limit, cause):
     assert log[0][limit][1] > log[0][limit][0]
     other = "cell_capacity" if limit == "capacity" else "capacity"
     assert log[0][other][1] >= log[0][other][0]
-    np.testing.assert_allclose(np.asarray(res.particles.q), np.asarray(ref.particles.q), rtol=1e-12, atol=0)
+    q_ref = np.asarray(ref.particles.q)      # to round-off of the state's scale (two programs; decision 98)
+    np.testing.assert_allclose(np.asarray(res.particles.q), q_ref, rtol=1e-12, atol=1e-14 * np.abs(q_ref).max())
 
 
 @pytest.mark.parametrize("limit, cause, text", [("capacity", Status.NEIGHBOR_OVERFLOW_ROW, "row capacity"),
