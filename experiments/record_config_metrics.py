@@ -20,7 +20,6 @@ import sys
 import time
 
 from mlsph_jax.testing import (
-    FINGERPRINT_TOLERANCE,
     REDUCED_OVERRIDES,
     builtin_configs,
     fingerprint_differences,
@@ -52,11 +51,11 @@ def main(argv=None) -> int:
         out[name] = fp
         line = f"{name:24s} {fp['n_steps']:6d} steps  {fp['wall_s']:7.1f} s"
         if ref is not None:
-            tol = FINGERPRINT_TOLERANCE if args.full else fingerprint_tolerance(name)  # decision 97
-            diff = fingerprint_differences(fp, ref[name], *tol) if name in ref else ["not in the reference"]
+            tol = fingerprint_tolerance(name, full=args.full)  # decision 97
+            diff = fingerprint_differences(fp, ref[name], **tol) if name in ref else ["not in the reference"]
             failed += bool(diff)
             if not diff:
-                margin, where = fingerprint_margin(fp, ref[name], *tol)
+                margin, where = fingerprint_margin(fp, ref[name], **tol)
                 line += f"  same (largest difference {margin:.2g} of the tolerance{', ' + where if where else ''})"
             else:
                 line += "  DIFFERENT: " + "; ".join(diff)

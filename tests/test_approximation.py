@@ -463,7 +463,7 @@ def test_full_and_fixed_centre_derivatives_differ_but_both_reproduce_linear_fiel
     d, q = 2, 2
     c, full = operators(d, "random", False, q, "full")
     _, fixed = operators(d, "random", False, q, "fixed_centre")
-    np.testing.assert_array_equal(full.values, fixed.values)  # same values, C_e[0]
+    np.testing.assert_allclose(full.values, fixed.values, rtol=0, atol=1e-13 * np.abs(full.values).max())  # C_e[0]
     for ops in (full, fixed):
         assert local_reproduction_error(c, ops, 1) < TOL
     diff = np.abs(full.gradients - fixed.gradients).max(axis=(1, 2)) * c.h
@@ -786,6 +786,9 @@ def test_truncated_stencils_take_the_wall_threshold(d, q):
     assert np.any(lo.degree[cut] != hi.degree[cut])          # the threshold decides some truncated rows
     for name in ("values", "gradients", "coeffs", "degree"):
         r, a_lo, a_hi = getattr(rule, name), getattr(lo, name), getattr(hi, name)
-        np.testing.assert_array_equal(r[cut], a_hi[cut], err_msg=name)
-        np.testing.assert_array_equal(r[~cut], a_lo[~cut], err_msg=name)
+        for sel, other in ((cut, a_hi), (~cut, a_lo)):      # three programs: floats to round-off (decision 98)
+            if name == "degree":
+                np.testing.assert_array_equal(r[sel], other[sel], err_msg=name)
+            else:
+                np.testing.assert_allclose(r[sel], other[sel], rtol=0, atol=1e-13 * np.abs(other).max(), err_msg=name)
     assert ApproxSpec(rcond=0.3, wall_rcond=1e-6).truncated_rcond is None   # never below rcond

@@ -340,9 +340,10 @@ def test_parachute_flux_is_used_on_first_order_pairs_only():
     hllc, rus = mk("scheme.flux=hllc"), mk("scheme.flux=rusanov")
     same = mk("scheme.flux=hllc", "scheme.parachute_flux=hllc")
     assert same.scheme.parachute() is None and mk().scheme.parachute() is None
-    np.testing.assert_array_equal(_rhs(mixed), _rhs(hllc))                  # every pair at high order
+    same_rhs = lambda a, b: np.testing.assert_allclose(a, b, rtol=0, atol=1e-13 * np.abs(b).max())  # noqa: E731
+    same_rhs(_rhs(mixed), _rhs(hllc))                  # every pair at high order (two programs: decision 98)
     low = mixed.particles.replace(ppd=jnp.zeros_like(mixed.particles.ppd))
-    np.testing.assert_array_equal(_rhs(mixed, low), _rhs(rus, rus.particles.replace(ppd=low.ppd)))
+    same_rhs(_rhs(mixed, low), _rhs(rus, rus.particles.replace(ppd=low.ppd)))
     half = mixed.particles.replace(ppd=mixed.particles.ppd.at[::2].set(0))
     r = _rhs(mixed, half)
     assert np.abs(r - _rhs(hllc, half)).max() > 0 and np.abs(r - _rhs(rus, half)).max() > 0

@@ -40,7 +40,7 @@ def test_local_steps_are_the_per_particle_cfl_limits(cylinder):
     steps = np.asarray(local_steps(p, prm, sch, 0.6, 0.125))
     fluid = np.asarray(p.kind) == Kind.FLUID
     assert (~fluid).any() and np.all(steps[~fluid] == 0.0)
-    assert steps[fluid].min() == float(cfl_dt(p, prm, sch, 0.6, 0.125))
+    assert steps[fluid].min() == pytest.approx(float(cfl_dt(p, prm, sch, 0.6, 0.125)), rel=1e-14)   # two programs
     U = np.asarray(p.q) / np.asarray(p.vol)[:, None]
     rho = U[:, 0]
     speed = np.hypot(U[:, 1] / rho, U[:, 2] / rho)
@@ -63,8 +63,9 @@ def test_a_step_with_equal_local_steps_is_the_global_step(cylinder):
     dt = float(cfl_dt(p, prm, sch, 0.6, 0.125))
     one = jax.jit(lambda d: ssp_rk3_step(p, prm, d, sch, g, pb.boundary)[0])
     a, b = one(jnp.asarray(dt)), one(jnp.full(p.n, dt))
-    for f in ("x", "vol", "q"):
-        np.testing.assert_array_equal(np.asarray(getattr(a, f)), np.asarray(getattr(b, f)))
+    for f in ("x", "vol", "q"):                           # two programs: to round-off (decision 98)
+        ref = np.asarray(getattr(a, f))
+        np.testing.assert_allclose(np.asarray(getattr(b, f)), ref, rtol=0, atol=1e-13 * np.abs(ref).max())
     z = pb.boundary.apply(p, prm) if pb.boundary is not None and hasattr(pb.boundary, "apply") else p
     steps = local_steps(z, prm, sch, 0.6, 0.125)
     dz = jax.jit(lambda z: rhs(z, prm, g(z), sch, pb.boundary))(z)

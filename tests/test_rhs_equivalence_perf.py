@@ -279,7 +279,7 @@ def _hlo_instructions(compiled) -> int:
     return len(re.findall(r"^\s*(ROOT\s+)?%?[\w.\-]+ = ", compiled.as_text(), re.M))
 
 
-def test_per_row_factor_is_computed_once_with_the_same_bits(monkeypatch):
+def test_per_row_factor_is_computed_once_and_gives_the_inlined_outputs(monkeypatch):
     """Decision 94: the unrolled factor of a row block (``cholesky_lists``: factor and pivot
     flags) runs inside a conditional, so XLA's fusion cannot copy it into every consumer over the
     stencil planes.  The outputs (with a per-row degree fallback) are those of the same code inlined

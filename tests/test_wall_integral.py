@@ -234,11 +234,12 @@ def test_constrained_wall_gradient_is_exact_for_quadratic_profiles():
 
 # without a body is slow (CI time): the body case checks the same search and more
 @pytest.mark.parametrize("body", [True, pytest.param(False, marks=pytest.mark.slow)])
-def test_cell_list_stencils_are_the_brute_force_stencils_bit_for_bit(body):
+def test_cell_list_stencils_are_the_brute_force_stencils(body):
     """The cell-list wall-stencil search sees the same particles in the same order as the
     O(N_b N) pass: on the lattice (equal distances: ties must break alike) and jittered (no
     symmetry to hide a missed candidate); the periodic channel wraps its stencils across the
-    box.  A support beyond the cells is reported."""
+    box.  Indices, slots and counts exactly, the offsets to round-off (bit for bit with the
+    default code generator).  A support beyond the cells is reported."""
     sch = Scheme(eos="ideal_gas")
     if body:
         p, bw, domain = _body_box(Circle("cyl", radius=0.5, n_points=40), sch, GAS)
@@ -258,7 +259,12 @@ def test_cell_list_stencils_are_the_brute_force_stencils_bit_for_bit(body):
         brute, cells = brute_f(x), cells_f(x)
         assert int(jnp.max(brute.count)) <= bw.capacity
         for a, b in zip(jax.tree_util.tree_leaves(brute), jax.tree_util.tree_leaves(cells), strict=True):
-            assert a.dtype == b.dtype and np.array_equal(np.asarray(a), np.asarray(b))
+            a, b = np.asarray(a), np.asarray(b)
+            assert a.dtype == b.dtype
+            if a.dtype.kind == "f":     # offsets: two programs, to round-off (decision 98)
+                np.testing.assert_allclose(a, b, rtol=0, atol=1e-13 * max(np.abs(b).max(), 1e-300))
+            else:                       # which points, in which slots: exactly
+                np.testing.assert_array_equal(a, b)
     # volumes grown so that the support outreaches the cells: the search says it is incomplete
     big = wall_stencils(x, p.vol * 4.0, p.kind, xb, grid=grid, **args)
     assert int(jnp.min(big.count)) > bw.capacity
