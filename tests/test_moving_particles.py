@@ -251,7 +251,9 @@ def test_verlet_skin_lists_give_the_trajectory_of_per_stage_rebuilds():
     default code generator, and to round-off in the test run's (decision 98; a stencil that differed
     would change the trajectory by far more).  A skin of
     0.02 support h (the driver's is 0.3) makes the candidates go stale every step or two, so
-    the rebuild test is exercised: without rebuilds the trajectory differs."""
+    the rebuild test is exercised: without rebuilds (the rebuild threshold patched away) the
+    trajectory differs by far more than the round-off tolerance."""
+    from mlsph_jax import verlet
     from mlsph_jax.integrate import StepControl, initial_carry, make_chunk
     from mlsph_jax.run import setup_run
 
@@ -272,6 +274,14 @@ def test_verlet_skin_lists_give_the_trajectory_of_per_stage_rebuilds():
         np.testing.assert_allclose(np.asarray(getattr(b.particles, f)), ref, rtol=0, atol=1e-13 * np.abs(ref).max())
     np.testing.assert_array_equal(np.asarray(a.particles.ppd), np.asarray(b.particles.ppd))
     assert float(a.t) == pytest.approx(float(b.t), rel=1e-13) and int(b.status) == 0   # dt from the CFL
+    # negative control: the same skin, candidates built once and never rebuilt (read at trace time)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(verlet, "_SKIN_SAFETY", 1e30)
+        chunk = make_chunk(pb.scheme, pb.domain, StepControl(cfl=0.3), 30, nspec=setup.nspec, skin=0.02)
+        c = chunk(initial_carry(pb.particles), pb.params, None, jnp.asarray(10.0))
+    ref = np.asarray(a.particles.q)
+    assert int(c.status) == 0        # measured: 6.5e-3 of max |q| apart, 6.5e10 times the tolerance above
+    assert np.abs(np.asarray(c.particles.q) - ref).max() > 1e-6 * np.abs(ref).max()
 
 
 @pytest.mark.slow   # 40-94 s (CI time); the default suite runs geometry_update = "step" in the
