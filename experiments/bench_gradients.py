@@ -28,6 +28,13 @@ Every row records the load average (``os.getloadavg``) at its end.
 ``--block-scan on|off|ab``: with (default) or without the scanned-block derivative of the stencil
 passes (:func:`mlsph_jax.approximation.block_scan`); ``ab`` as for ``--remat-blocks`` (not both
 ``ab`` at once).
+
+``--tangents K [K ...]``: also time forward mode, ``mlsph_jax.sensitivity.value_and_grad(...,
+"forward")`` (what ``mlsph sensitivity --mode forward`` runs), with K tangent components (the run
+differentiated with respect to v in R^K through mu (1 + sum(v)), so every tangent is carried
+through the whole run, as K parameters would be), interleaved with the forward and reverse runs;
+the row then holds its time, its ratio to the forward run and the relative difference of its
+derivative from reverse mode's.
 """
 
 from __future__ import annotations
@@ -64,13 +71,15 @@ def _timed(fn, arg) -> tuple[float, float, object]:
 
 
 def child(n: int, steps: int, checkpoint: str, max_gb: float, plan_only: bool = False, remat: str = "on",
-          dt: float | None = None, repeat: int = 1, scan: str = "on") -> dict:
+          dt: float | None = None, repeat: int = 1, scan: str = "on", tangents=()) -> dict:
     import jax
+    import jax.numpy as jnp
 
     from mlsph_jax import config
     from mlsph_jax.approximation import block_scan
     from mlsph_jax.cases import build_problem
     from mlsph_jax.differentiable import make_simulate, with_param
+    from mlsph_jax.sensitivity import value_and_grad
 
     t_end = 0.2 if dt is None else dt * steps
     cfg = config.load(ROOT / "configs/taylor_green_2d.toml", [f"case.n={n}", f"time.t_end={t_end!r}"])
@@ -102,6 +111,15 @@ def child(n: int, steps: int, checkpoint: str, max_gb: float, plan_only: bool = 
         out["planned_forward_mb"] = _planned_mb(c)
         out["planned_reverse_mb"] = _planned_mb(cg)
         progs[rb, sc] = (c, cg)
+    tangent_progs = {}
+    for k in tangents:   # forward mode with k tangents, on the last variant's run
+        def h(v, f=f):
+            return f(mu * (1.0 + jnp.sum(v))), 0.0
+
+        with block_scan(variants[-1][1]):
+            t0 = time.perf_counter()
+            tangent_progs[k] = jax.jit(value_and_grad(h, "forward")).lower(jnp.zeros(k)).compile()
+            out[f"forward_mode_{k}_compile_s"] = time.perf_counter() - t0
     if plan_only:  # XLA's memory plan of both programs, nothing executed (e.g. 10,000 steps)
         out["skipped"] = "--plan-only: compiled, not executed"
         return out
@@ -121,7 +139,15 @@ def child(n: int, steps: int, checkpoint: str, max_gb: float, plan_only: bool = 
                 b["gradient" if key == "reverse" else "ke"] = float(val)
                 if rb == variants[0] and key == "forward":
                     out["peak_rss_forward_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        for k, cf in tangent_progs.items():
+            wall, cpu, ((_, _), jac) = _timed(cf, jnp.zeros(k))
+            out[f"forward_mode_{k}_s"] = min(out.get(f"forward_mode_{k}_s", wall), wall)
+            out[f"forward_mode_{k}_cpu_s"] = min(out.get(f"forward_mode_{k}_cpu_s", cpu), cpu)
+            out[f"forward_mode_{k}_derivative"] = float(jac[0]) / mu   # d ke / d mu
     out.update(best[variants[-1]])
+    for k in tangent_progs:
+        d = out[f"forward_mode_{k}_derivative"]
+        out[f"forward_mode_{k}_rel_diff"] = abs(d - out["gradient"]) / abs(out["gradient"])
     if len(variants) == 2:
         old, new = best[variants[0]], best[variants[1]]
         out["old"] = old
@@ -150,11 +176,13 @@ def main():
     ap.add_argument("--dt", type=float, default=None, help="fixed step (t_end = dt * steps); default t_end = 0.2")
     ap.add_argument("--repeat", type=int, default=1,
                     help="timed repetitions (best of; interleaved with --remat-blocks ab)")
+    ap.add_argument("--tangents", type=int, nargs="+", default=[],
+                    help="also time forward mode with these numbers of tangent components")
     ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         print(json.dumps(child(int(args.child[0]), int(args.child[1]), args.child[2], args.max_gb, args.plan_only,
-                               args.remat_blocks, args.dt, args.repeat, args.block_scan)))
+                               args.remat_blocks, args.dt, args.repeat, args.block_scan, args.tangents)))
         return
     rows = []
     print(f"{'N':>7} {'steps':>6} {'checkpoint':<10} {'fwd s':>8} {'fwd p-upd/s':>11} {'rev s':>8} {'rev/fwd':>7} "
@@ -163,6 +191,7 @@ def main():
         for ck in args.checkpoints:
             cmd = [sys.executable, __file__, "--max-gb", str(args.max_gb), "--remat-blocks", args.remat_blocks,
                    "--block-scan", args.block_scan, "--repeat", str(args.repeat),
+                   *(["--tangents", *map(str, args.tangents)] if args.tangents else []),
                    "--child", str(n), str(args.steps), ck]
             if args.dt is not None:
                 cmd[2:2] = ["--dt", repr(args.dt)]
@@ -198,6 +227,11 @@ def main():
                         f"{o['reverse_s'] / o['forward_s']:.2f} cpu ratio "
                         f"{o['reverse_cpu_s'] / o['forward_cpu_s']:.2f}; "
                         f"gradients differ by {row['gradient_rel_diff']:.1e}")
+            for k in args.tangents:
+                cpu += (f"; forward mode, {k} tangent(s): {row[f'forward_mode_{k}_s']:.1f} s, "
+                        f"{row[f'forward_mode_{k}_s'] / row['forward_s']:.2f}x the forward run "
+                        f"(cpu {row[f'forward_mode_{k}_cpu_s'] / row['forward_cpu_s']:.2f}x), "
+                        f"derivative differs from reverse mode's by {row[f'forward_mode_{k}_rel_diff']:.1e}")
             print(f"{row['n_particles']:>7} {row['steps']:>6} {ck:<10} {row['forward_s']:>8.1f} "
                   f"{row['forward_p_upd_per_s']:>11.3g} {row['reverse_s']:>8.1f} "
                   f"{row['reverse_s'] / row['forward_s']:>7.2f} {row['peak_rss_mb']:>9.0f} {plan_s} "

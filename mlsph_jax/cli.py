@@ -91,8 +91,13 @@ def _parser() -> argparse.ArgumentParser:
     diff_opts.add_argument("--record-every", type=int, default=1, help="steps between recorded diagnostics")
     diff_opts.add_argument("--checkpoint", default="nested", choices=("none", "step", "nested"),
                            help="reverse-mode memory strategy (mlsph_jax.differentiable)")
+    diff_opts.add_argument("--mode", default="auto",
+                           help="automatic differentiation: reverse (cost independent of the number of "
+                                "parameters), forward (one tangent per parameter component, nothing stored "
+                                "per step) or auto (forward for a single scalar, else reverse; "
+                                "mlsph_jax.sensitivity.MODES)")
     s_ = sub.add_parser("sensitivity", parents=[diff_opts],
-                        help="d METRIC / d parameter of a whole run (reverse-mode autodiff)")
+                        help="d METRIC / d parameter of a whole run (automatic differentiation)")
     s_.add_argument("--wrt", nargs="+", required=True, metavar="KEY", help="parameters, e.g. physics.mu eos.c0")
     s_.add_argument("--of", required=True, metavar="METRIC",
                     help="objective, e.g. ke_final, cd (a differentiable metric at t_end), cd_mean / cl_rms (time "
@@ -304,12 +309,13 @@ def cmd_sensitivity(args) -> int:
     # every forward run is checked (a failure raises SimulationError: exit 1; an --n-steps above the
     # CFL limit of time.cfl is refused before running: exit 2)
     res = sensitivity(problem, args.wrt, args.of, check_fd=args.check_fd, fd_rel=args.fd_rel, window=args.window,
-                      **_cfl_kw(cfg), **_diff_kw(args))
+                      mode=args.mode, **_cfl_kw(cfg), **_diff_kw(args))
     res["wall_time_s"] = time.perf_counter() - t0
     over = f" over t in [{res['window'][0]:.6g}, {res['window'][1]:.6g}]" if "window" in res else ""
     if "window" in res and args.window is None:
         print(_default_window_note(args.of, res["window"], cfg))
-    print(f"{args.of} = {res['value']:.10g}{over} after {res['n_steps']} steps of dt = {res['dt']:.4g}")
+    print(f"{args.of} = {res['value']:.10g}{over} after {res['n_steps']} steps of dt = {res['dt']:.4g} "
+          f"({res['mode']} mode)")
     for k, e in res["gradients"].items():
         line = f"  d {args.of} / d {k} = {e['gradient']}"
         if args.check_fd:
@@ -351,7 +357,8 @@ def cmd_calibrate(args) -> int:
         tqdm.write(f"iteration {h['iteration']:4d}  loss {h['loss']:.6e}  {ps}")  # above the bar
 
     res = calibrate(problem, args.fit, target, steps=args.steps, lr=args.lr, progress=not args.quiet,
-                    callback=show, optimizer=args.optimizer, tol=args.tol, **_cfl_kw(cfg), **_diff_kw(args))
+                    callback=show, optimizer=args.optimizer, tol=args.tol, mode=args.mode, **_cfl_kw(cfg),
+                    **_diff_kw(args))
     out = Path(args.out) if args.out else Path("out") / f"{stem}_calibration"
     write_calibration(out, res)
     why = {"tol": f"loss <= --tol {args.tol}", "plateau": "the loss stopped decreasing",

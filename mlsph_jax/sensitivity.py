@@ -22,6 +22,9 @@ Objectives (``--of``) are differentiable scalars of a run made by
 :func:`sensitivity` returns d objective / d parameter for the requested parameters (dotted keys
 of the parameter pytree, e.g. ``physics.mu``, ``eos.c0``, ``boundary.wall_velocity``) and, with
 ``check_fd``, central finite differences with the step used and the relative disagreement.
+Both functions differentiate in forward or reverse mode (``mode``, :data:`MODES`): by default
+forward mode for a single scalar parameter component, where it is the cheaper of the two and
+stores nothing per step, and reverse mode (with the run's ``checkpoint`` strategy) otherwise.
 
 :func:`calibrate` fits parameters to observed time series (a CSV with a ``t`` column and columns
 named after diagnostics) with optax on relative coordinates theta = theta_0 (1 + s), so one
@@ -53,6 +56,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .approximation import block_scan
 from .differentiable import check, make_simulate, param_paths, with_param
 from .errors import InputError
 from .state import Params
@@ -141,6 +145,59 @@ def make_objective(problem, simulate, of: str, window=None):
     return f
 
 
+#: How :func:`sensitivity` and :func:`calibrate` differentiate the run: ``reverse`` (``jax.grad``:
+#: one forward run, then the step recomputations and transposes that ``checkpoint`` prescribes;
+#: cost independent of the number of parameters), ``forward`` (``jax.jacfwd``: the run once with
+#: one tangent per scalar parameter component carried along; no checkpoints, nothing stored per
+#: step; cost grows with the components) or ``auto`` (forward up to :data:`FORWARD_MAX_COMPONENTS`
+#: components, else reverse).  The only list of names.
+MODES = ("auto", "reverse", "forward")
+
+#: ``mode = "auto"`` differentiates in forward mode up to this many scalar parameter components
+#: (the sizes of the ``wrt`` / ``fit`` parameters added up): measured on Taylor-Green, 2,500
+#: particles (docs/performance.md "Forward mode"), one tangent costs about 1.8 forward runs on top
+#: of the run itself, so a single component is cheaper forward than reverse (2.8x the forward
+#: run against 3.8x with ``checkpoint = "step"`` and 4.8x with the default ``"nested"``).
+FORWARD_MAX_COMPONENTS = 1
+
+
+def resolve_mode(mode: str, theta: Mapping) -> str:
+    """``"forward"`` or ``"reverse"``: ``mode`` with ``"auto"`` resolved by the number of scalar
+    components of the parameters ``theta`` (:data:`MODES`); an unknown mode is an InputError."""
+    if mode not in MODES:
+        raise InputError(f"invalid mode={mode!r}; allowed: {', '.join(MODES)}")
+    if mode != "auto":
+        return mode
+    n = sum(int(np.size(v)) for v in theta.values())
+    return "forward" if n <= FORWARD_MAX_COMPONENTS else "reverse"
+
+
+def value_and_grad(fun, mode: str):
+    """``jax.value_and_grad(fun, has_aux=True)`` in ``mode`` (``"forward"`` or ``"reverse"``):
+    ``fun(theta) -> (scalar, aux)``; returns ``((value, aux), grads)`` with ``grads`` shaped like
+    ``theta``.  Forward mode is ``jax.jacfwd`` of the scalar: the primal run is not batched (the
+    tangents are), so value and aux come from the one run that carries every tangent."""
+    if mode == "reverse":
+        return jax.value_and_grad(fun, has_aux=True)
+    if mode != "forward":
+        raise InputError(f"invalid mode={mode!r}; allowed: forward, reverse")
+
+    def with_value(theta):
+        val, aux = fun(theta)
+        return val, (val, aux)
+
+    def vg(theta):
+        # traced with the blocked stencil passes' own loop JVP (approximation.block_scan off): the
+        # scanned-block derivative exists for the transpose (decision 76); a tangent needs no
+        # transpose, and without the stacking copies it costs 14 % less at 10,000 particles
+        # (docs/performance.md "Forward mode"), with the same derivative to the last bit
+        with block_scan(False):
+            grads, (val, aux) = jax.jacfwd(with_value, has_aux=True)(theta)
+        return (val, aux), grads
+
+    return vg
+
+
 def _check_wrt(params: Params, wrt: Sequence[str]):
     allowed = param_paths(params)
     for k in wrt:
@@ -149,13 +206,15 @@ def _check_wrt(params: Params, wrt: Sequence[str]):
 
 
 def sensitivity(problem, wrt: Sequence[str], of: str, check_fd: bool = False, fd_rel: float = 1e-5,
-                window=None, **simulate_kw) -> dict:
+                window=None, mode: str = "auto", **simulate_kw) -> dict:
     """Gradient of objective ``of`` with respect to each parameter in ``wrt`` (module doc);
-    ``window`` = (t_start, t_end) of a time-averaged objective (default the whole run)."""
+    ``window`` = (t_start, t_end) of a time-averaged objective (default the whole run);
+    ``mode``: one of :data:`MODES` (the result's ``mode`` says which one ran)."""
     _check_wrt(problem.params, wrt)
+    theta = {k: jnp.asarray(problem.params[k], jnp.float64) for k in wrt}
+    mode = resolve_mode(mode, theta)
     simulate = _simulate_for(problem, **simulate_kw)
     f = make_objective(problem, simulate, of, window=window)
-    theta = {k: jnp.asarray(problem.params[k], jnp.float64) for k in wrt}
 
     def g(th):
         p = problem.params
@@ -163,11 +222,11 @@ def sensitivity(problem, wrt: Sequence[str], of: str, check_fd: bool = False, fd
             p = with_param(p, k, v)
         return f(p)
 
-    (value, out), grads = jax.jit(jax.value_and_grad(g, has_aux=True))(theta)
+    (value, out), grads = jax.jit(value_and_grad(g, mode))(theta)
     check(out, simulate, problem.params)
     _check_gradient(of, float(value), grads, f.window)
     result = {"objective": of, "value": float(value), "n_steps": simulate.n_steps, "dt": simulate.dt,
-              "gradients": {}}
+              "mode": mode, "gradients": {}}
     if f.window is not None:
         result["window"] = list(f.window)
     g_jit = jax.jit(g) if check_fd else None
@@ -294,7 +353,7 @@ OPTIMIZERS = ("lbfgs", "adam")
 
 def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], steps: int = 50, lr: float | None = None,
               progress: bool = True, callback=None, optimizer: str = "lbfgs", tol: float | None = None,
-              **simulate_kw) -> dict:
+              mode: str = "auto", **simulate_kw) -> dict:
     """Fit ``fit`` parameters to ``target`` series with optax (module docstring).
 
     ``target`` columns other than ``t`` that the run does not record (e.g. the ``ke_exact`` of
@@ -308,6 +367,8 @@ def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], ste
     smooth few-parameter fits converges in a handful of iterations; a given ``lr`` replaces the
     line search by that fixed step scale) or ``adam`` (learning rate ``lr``, default 0.05, with
     cosine decay to zero over ``steps``, so that it settles instead of oscillating).
+
+    ``mode``: how the loss is differentiated, one of :data:`MODES` (the result's ``mode``).
     """
     import optax
 
@@ -320,6 +381,7 @@ def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], ste
     if tol is not None and not (np.isfinite(tol) and tol > 0):
         raise InputError(f"invalid tol={tol!r}; allowed: a finite float > 0 (or None: run all steps)")
     _check_wrt(problem.params, fit)
+    mode = resolve_mode(mode, {k: problem.params[k] for k in fit})
     simulate = _simulate_for(problem, **simulate_kw)
     shape = jax.eval_shape(simulate, problem.params, problem.particles)
     cols = [c for c in target if c != "t" and c in shape.series]
@@ -338,7 +400,7 @@ def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], ste
         terms = [jnp.mean((jnp.interp(t_obs, out.times, out.series[c]) - obs[c]) ** 2) / scale[c] for c in cols]
         return sum(terms) / len(terms), out
 
-    vg = jax.jit(jax.value_and_grad(loss, has_aux=True))
+    vg = jax.jit(value_and_grad(loss, mode))
 
     def trial_loss(z):
         """The line search's trial runs: a failed run is an infinite loss (the step shrinks)
@@ -395,7 +457,7 @@ def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], ste
     if bar is not None:
         bar.close()
     return {"fit": list(fit), "history": history, "final": history[-1]["params"], "loss": history[-1]["loss"],
-            "stopped": stopped, "tol": tol, "columns": cols, "ignored_columns": ignored,
+            "stopped": stopped, "tol": tol, "mode": mode, "columns": cols, "ignored_columns": ignored,
             "series": {c: np.asarray(out.series[c]).tolist() for c in cols}, "times": np.asarray(out.times).tolist(),
             "target": {k: np.asarray(target[k]).tolist() for k in ["t", *cols]}}
 

@@ -3,6 +3,7 @@ central finite differences, checkpointing equivalence, bad input, the CLI."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
 
@@ -133,7 +134,10 @@ def test_sensitivity_cli(tmp_path):
     assert rc == 0
     s = json.loads((out / "sensitivity.json").read_text())
     assert s["objective"] == "ke_final" and np.isfinite(s["gradients"]["eos.gamma"]["gradient"])
+    assert s["mode"] == "forward"   # --mode auto with one scalar parameter
     assert main(["sensitivity", "configs/riemann_r1_tait.toml", "--wrt", "eos.nope", "--of", "ke_final"]) == 2
+    assert main(["sensitivity", "configs/riemann_r1_tait.toml", "--wrt", "eos.gamma", "--of", "ke_final",
+                 "--mode", "sideways"]) == 2
 
 
 @pytest.mark.slow   # 57 s; the default suite recovers the same viscosity through `mlsph calibrate` below
@@ -253,6 +257,35 @@ def test_forward_mode_and_vjp_agree_with_reverse_mode():
     gv = jax.jit(reverse)(theta)
     assert np.all(np.asarray(gv) != 0)
     np.testing.assert_allclose(jf, gv, rtol=1e-10)
+
+
+def test_sensitivity_in_forward_mode_equals_reverse_mode():
+    """``sensitivity(mode="forward")`` (jax.jacfwd of the objective, one tangent per parameter
+    component carried through the run) gives the value and the gradients of reverse mode (which
+    the finite-difference tests above verify) to 1e-10, for a scalar and a vector parameter;
+    ``"auto"`` picks forward for one scalar component and reverse above it; an unknown mode is
+    refused before anything runs."""
+    from mlsph_jax.sensitivity import FORWARD_MAX_COMPONENTS, resolve_mode
+    from mlsph_jax.state import Params
+
+    pb = periodic_shear_problem()
+    wrt = ["physics.mu", "physics.body_force"]
+    pb = dataclasses.replace(pb, params=Params({**{k: pb.params[k] for k in pb.params},
+                                                "physics.body_force": jnp.asarray([0.3, -0.2])}))
+    res = {m: sensitivity(pb, wrt, "ke_final", n_steps=8, checkpoint="step", mode=m) for m in ("reverse", "forward")}
+    assert res["forward"]["mode"] == "forward" and res["reverse"]["mode"] == "reverse"
+    np.testing.assert_allclose(res["forward"]["value"], res["reverse"]["value"], rtol=1e-13)
+    for k in wrt:
+        g_f = np.asarray(res["forward"]["gradients"][k]["gradient"])
+        g_r = np.asarray(res["reverse"]["gradients"][k]["gradient"])
+        assert np.all(g_r != 0), k
+        np.testing.assert_allclose(g_f, g_r, rtol=1e-10, err_msg=k)
+    assert FORWARD_MAX_COMPONENTS == 1
+    assert resolve_mode("auto", {"physics.mu": 0.02}) == "forward"
+    assert resolve_mode("auto", {"physics.mu": 0.02, "eos.c0": 10.0}) == "reverse"
+    assert resolve_mode("auto", {"physics.body_force": np.zeros(2)}) == "reverse"
+    with pytest.raises(InputError, match="mode='backward'.*auto, reverse, forward"):
+        sensitivity(pb, ["physics.mu"], "ke_final", n_steps=8, mode="backward")
 
 
 def test_neighbour_overflow_in_a_differentiated_run_is_an_error():
