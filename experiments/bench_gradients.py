@@ -34,7 +34,8 @@ passes (:func:`mlsph_jax.approximation.block_scan`); ``ab`` as for ``--remat-blo
 differentiated with respect to v in R^K through mu (1 + sum(v)), so every tangent is carried
 through the whole run, as K parameters would be), interleaved with the forward and reverse runs;
 the row then holds its time, its ratio to the forward run and the relative difference of its
-derivative from reverse mode's.
+derivative from reverse mode's.  ``--tangent-blocks loop`` (default: the shipped path, the blocked
+stencil passes' own loop JVP) or ``scan`` (their scanned-block derivative, for comparison).
 """
 
 from __future__ import annotations
@@ -71,7 +72,8 @@ def _timed(fn, arg) -> tuple[float, float, object]:
 
 
 def child(n: int, steps: int, checkpoint: str, max_gb: float, plan_only: bool = False, remat: str = "on",
-          dt: float | None = None, repeat: int = 1, scan: str = "on", tangents=()) -> dict:
+          dt: float | None = None, repeat: int = 1, scan: str = "on", tangents=(),
+          tangent_blocks: str = "loop") -> dict:
     import jax
     import jax.numpy as jnp
 
@@ -112,14 +114,16 @@ def child(n: int, steps: int, checkpoint: str, max_gb: float, plan_only: bool = 
         out["planned_reverse_mb"] = _planned_mb(cg)
         progs[rb, sc] = (c, cg)
     tangent_progs = {}
+    if tangents:
+        out["tangent_blocks"] = tangent_blocks
     for k in tangents:   # forward mode with k tangents, on the last variant's run
         def h(v, f=f):
             return f(mu * (1.0 + jnp.sum(v))), 0.0
 
-        with block_scan(variants[-1][1]):
-            t0 = time.perf_counter()
-            tangent_progs[k] = jax.jit(value_and_grad(h, "forward")).lower(jnp.zeros(k)).compile()
-            out[f"forward_mode_{k}_compile_s"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        vg = value_and_grad(h, "forward", scan_blocks=tangent_blocks == "scan")
+        tangent_progs[k] = jax.jit(vg).lower(jnp.zeros(k)).compile()
+        out[f"forward_mode_{k}_compile_s"] = time.perf_counter() - t0
     if plan_only:  # XLA's memory plan of both programs, nothing executed (e.g. 10,000 steps)
         out["skipped"] = "--plan-only: compiled, not executed"
         return out
@@ -177,12 +181,17 @@ def main():
     ap.add_argument("--repeat", type=int, default=1,
                     help="timed repetitions (best of; interleaved with --remat-blocks ab)")
     ap.add_argument("--tangents", type=int, nargs="+", default=[],
-                    help="also time forward mode with these numbers of tangent components")
+                    help="also time forward mode with these numbers (>= 1) of tangent components")
+    ap.add_argument("--tangent-blocks", choices=("loop", "scan"), default="loop",
+                    help="forward mode through the blocked passes' loop JVP (shipped) or scanned blocks")
     ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if any(k < 1 for k in args.tangents):
+        ap.error(f"invalid --tangents {args.tangents}; allowed: integers >= 1")
     if args.child:
         print(json.dumps(child(int(args.child[0]), int(args.child[1]), args.child[2], args.max_gb, args.plan_only,
-                               args.remat_blocks, args.dt, args.repeat, args.block_scan, args.tangents)))
+                               args.remat_blocks, args.dt, args.repeat, args.block_scan, args.tangents,
+                               args.tangent_blocks)))
         return
     rows = []
     print(f"{'N':>7} {'steps':>6} {'checkpoint':<10} {'fwd s':>8} {'fwd p-upd/s':>11} {'rev s':>8} {'rev/fwd':>7} "
@@ -192,6 +201,7 @@ def main():
             cmd = [sys.executable, __file__, "--max-gb", str(args.max_gb), "--remat-blocks", args.remat_blocks,
                    "--block-scan", args.block_scan, "--repeat", str(args.repeat),
                    *(["--tangents", *map(str, args.tangents)] if args.tangents else []),
+                   "--tangent-blocks", args.tangent_blocks,
                    "--child", str(n), str(args.steps), ck]
             if args.dt is not None:
                 cmd[2:2] = ["--dt", repr(args.dt)]

@@ -300,8 +300,9 @@ def cmd_sensitivity(args) -> int:
     import json
 
     from .cases import build_problem
-    from .sensitivity import sensitivity
+    from .sensitivity import check_mode, sensitivity
 
+    check_mode(args.mode)
     _need_config(args)
     cfg, stem = _load(args.config, args.set)
     problem = build_problem(cfg)
@@ -343,8 +344,9 @@ def _default_window_note(of: str, window, cfg) -> str:
 
 def cmd_calibrate(args) -> int:
     from .cases import build_problem
-    from .sensitivity import calibrate, read_target, write_calibration
+    from .sensitivity import calibrate, check_mode, read_target, write_calibration
 
+    check_mode(args.mode)
     _need_config(args)
     cfg, stem = _load(args.config, args.set)
     problem = build_problem(cfg)

@@ -154,33 +154,41 @@ def make_objective(problem, simulate, of: str, window=None):
 MODES = ("auto", "reverse", "forward")
 
 #: ``mode = "auto"`` differentiates in forward mode up to this many scalar parameter components
-#: (the sizes of the ``wrt`` / ``fit`` parameters added up): measured on Taylor-Green, 2,500
-#: particles (docs/performance.md "Forward mode"), one tangent costs about 1.8 forward runs on top
-#: of the run itself, so a single component is cheaper forward than reverse (2.8x the forward
-#: run against 3.8x with ``checkpoint = "step"`` and 4.8x with the default ``"nested"``).
+#: (the sizes of the ``wrt`` / ``fit`` parameters added up).  Measured on Taylor-Green
+#: (docs/performance.md "Whole-run gradients measured again, and forward mode"): one tangent costs
+#: 3.0-3.4x the forward run (10,000 particles) and 2.9-3.2x (2,500), reverse mode 3.8-4.3x with
+#: ``checkpoint = "step"`` and 4.8x with the default ``"nested"``; a second tangent costs as much
+#: as the first (5.6-7.3x for two), so forward mode pays for exactly one component.
 FORWARD_MAX_COMPONENTS = 1
+
+
+def check_mode(mode: str) -> None:
+    """InputError naming ``mode`` (``--mode``), the value and :data:`MODES` unless it is one of them."""
+    if mode not in MODES:
+        raise InputError(f"invalid mode (--mode) {mode!r}; allowed: {', '.join(MODES)}")
 
 
 def resolve_mode(mode: str, theta: Mapping) -> str:
     """``"forward"`` or ``"reverse"``: ``mode`` with ``"auto"`` resolved by the number of scalar
     components of the parameters ``theta`` (:data:`MODES`); an unknown mode is an InputError."""
-    if mode not in MODES:
-        raise InputError(f"invalid mode={mode!r}; allowed: {', '.join(MODES)}")
+    check_mode(mode)
     if mode != "auto":
         return mode
     n = sum(int(np.size(v)) for v in theta.values())
     return "forward" if n <= FORWARD_MAX_COMPONENTS else "reverse"
 
 
-def value_and_grad(fun, mode: str):
+def value_and_grad(fun, mode: str, scan_blocks: bool = False):
     """``jax.value_and_grad(fun, has_aux=True)`` in ``mode`` (``"forward"`` or ``"reverse"``):
     ``fun(theta) -> (scalar, aux)``; returns ``((value, aux), grads)`` with ``grads`` shaped like
     ``theta``.  Forward mode is ``jax.jacfwd`` of the scalar: the primal run is not batched (the
-    tangents are), so value and aux come from the one run that carries every tangent."""
+    tangents are), so value and aux come from the one run that carries every tangent.
+    ``scan_blocks``: forward mode's tangent through the blocked stencil passes' scanned-block
+    derivative instead of their own loop JVP (for comparison only; same derivative, dearer)."""
     if mode == "reverse":
         return jax.value_and_grad(fun, has_aux=True)
     if mode != "forward":
-        raise InputError(f"invalid mode={mode!r}; allowed: forward, reverse")
+        raise InputError(f"invalid mode (--mode) {mode!r}; allowed: forward, reverse")
 
     def with_value(theta):
         val, aux = fun(theta)
@@ -189,9 +197,10 @@ def value_and_grad(fun, mode: str):
     def vg(theta):
         # traced with the blocked stencil passes' own loop JVP (approximation.block_scan off): the
         # scanned-block derivative exists for the transpose (decision 76); a tangent needs no
-        # transpose, and without the stacking copies it costs 14 % less at 10,000 particles
-        # (docs/performance.md "Forward mode"), with the same derivative to the last bit
-        with block_scan(False):
+        # transpose, and without the stacking copies it costs 14 % less at 10,000 particles, with
+        # the same derivative to the last bit (docs/performance.md "Whole-run gradients measured
+        # again, and forward mode")
+        with block_scan(scan_blocks):
             grads, (val, aux) = jax.jacfwd(with_value, has_aux=True)(theta)
         return (val, aux), grads
 
@@ -408,6 +417,20 @@ def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], ste
         ``vg`` and checked on the host."""
         val, out = loss(z)
         return jnp.where(out.status == 0, val, jnp.inf)
+
+    if mode == "forward":
+        # optax's zoom line search differentiates value_fn with jax.value_and_grad (reverse mode):
+        # a custom VJP whose forward pass is the forward-mode derivative keeps its trial runs in
+        # forward mode too (one tangent, nothing stored per step); the pullback only scales it
+        trial_vg = value_and_grad(loss, "forward")
+        trial_loss = jax.custom_vjp(trial_loss)
+
+        def trial_fwd(z):
+            (val, out), g = trial_vg(z)
+            ok = out.status == 0
+            return jnp.where(ok, val, jnp.inf), jax.tree_util.tree_map(lambda gi: jnp.where(ok, gi, 0.0), g)
+
+        trial_loss.defvjp(trial_fwd, lambda g, ct: (jax.tree_util.tree_map(lambda gi: ct * gi, g),))
 
     s = {k: jnp.zeros_like(v) for k, v in theta0.items()}
     if optimizer == "adam":

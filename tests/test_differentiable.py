@@ -259,14 +259,18 @@ def test_forward_mode_and_vjp_agree_with_reverse_mode():
     np.testing.assert_allclose(jf, gv, rtol=1e-10)
 
 
-def test_sensitivity_in_forward_mode_equals_reverse_mode():
+def test_sensitivity_in_forward_mode_equals_reverse_mode(monkeypatch):
     """``sensitivity(mode="forward")`` (jax.jacfwd of the objective, one tangent per parameter
     component carried through the run) gives the value and the gradients of reverse mode (which
-    the finite-difference tests above verify) to 1e-10, for a scalar and a vector parameter;
+    the finite-difference tests above verify) to 1e-10, for a scalar and a vector parameter, with
+    the stencil passes split into several row blocks (the loop JVP forward mode uses);
     ``"auto"`` picks forward for one scalar component and reverse above it; an unknown mode is
     refused before anything runs."""
+    import mlsph_jax.approximation as apx
     from mlsph_jax.sensitivity import FORWARD_MAX_COMPONENTS, resolve_mode
     from mlsph_jax.state import Params
+
+    monkeypatch.setattr(apx, "BLOCK_SLOTS", 16 * 10)   # ~16 rows per block: 4+ blocks for 64 particles
 
     pb = periodic_shear_problem()
     wrt = ["physics.mu", "physics.body_force"]
@@ -284,7 +288,7 @@ def test_sensitivity_in_forward_mode_equals_reverse_mode():
     assert resolve_mode("auto", {"physics.mu": 0.02}) == "forward"
     assert resolve_mode("auto", {"physics.mu": 0.02, "eos.c0": 10.0}) == "reverse"
     assert resolve_mode("auto", {"physics.body_force": np.zeros(2)}) == "reverse"
-    with pytest.raises(InputError, match="mode='backward'.*auto, reverse, forward"):
+    with pytest.raises(InputError, match=r"mode \(--mode\) 'backward'.*auto, reverse, forward"):
         sensitivity(pb, ["physics.mu"], "ke_final", n_steps=8, mode="backward")
 
 
