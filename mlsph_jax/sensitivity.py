@@ -156,7 +156,7 @@ MODES = ("auto", "reverse", "forward")
 #: ``mode = "auto"`` differentiates in forward mode up to this many scalar parameter components
 #: (the sizes of the ``wrt`` / ``fit`` parameters added up).  Measured on Taylor-Green
 #: (docs/performance.md "Whole-run gradients measured again, and forward mode"): one tangent costs
-#: 3.0-3.4x the forward run (10,000 particles) and 2.9-3.2x (2,500), reverse mode 3.8-4.3x with
+#: 3.0-3.4x the forward run (10,000 particles) and 2.7-3.2x (2,500), reverse mode 3.6-4.9x with
 #: ``checkpoint = "step"`` and 4.8x with the default ``"nested"``; a second tangent costs as much
 #: as the first (5.6-7.3x for two), so forward mode pays for exactly one component.
 FORWARD_MAX_COMPONENTS = 1
