@@ -409,7 +409,8 @@ def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], ste
         terms = [jnp.mean((jnp.interp(t_obs, out.times, out.series[c]) - obs[c]) ** 2) / scale[c] for c in cols]
         return sum(terms) / len(terms), out
 
-    vg = jax.jit(value_and_grad(loss, mode))
+    loss_vg = value_and_grad(loss, mode)
+    vg = jax.jit(loss_vg)
 
     def trial_loss(z):
         """The line search's trial runs: a failed run is an infinite loss (the step shrinks)
@@ -422,11 +423,10 @@ def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], ste
         # optax's zoom line search differentiates value_fn with jax.value_and_grad (reverse mode):
         # a custom VJP whose forward pass is the forward-mode derivative keeps its trial runs in
         # forward mode too (one tangent, nothing stored per step); the pullback only scales it
-        trial_vg = value_and_grad(loss, "forward")
         trial_loss = jax.custom_vjp(trial_loss)
 
         def trial_fwd(z):
-            (val, out), g = trial_vg(z)
+            (val, out), g = loss_vg(z)
             ok = out.status == 0
             return jnp.where(ok, val, jnp.inf), jax.tree_util.tree_map(lambda gi: jnp.where(ok, gi, 0.0), g)
 
