@@ -177,7 +177,11 @@ def setup_run(problem, *, headroom: float = 1.3, min_moving_headroom: bool | flo
               particles: Particles | None = None, nspec: nb.NeighborSpec | None = None) -> RunSetup:
     """The :class:`RunSetup` of ``problem`` (sized from ``particles``, default the problem's).
 
-    ``nspec``: use this spec instead of sizing one (the list is built from it)."""
+    ``nspec``: use this spec instead of sizing one (the list is built from it).  Walls whose
+    velocity crosses them are refused here, on every run path (``check_motion`` of the boundary)."""
+    check_motion = getattr(problem.boundary, "check_motion", None)
+    if check_motion is not None:
+        check_motion(problem.params)
     p = problem.particles if particles is None else particles
     if nspec is None:
         nspec, nl = plan_neighbors(p, problem.scheme, problem.domain, headroom=headroom,

@@ -273,6 +273,31 @@ class BoundaryIntegralWalls:
                 full[self.curves[k].key("velocity")] = params["boundary.wall_velocity"][k]
         return quadrature(self.curves, Params(full))
 
+    def check_motion(self, params) -> None:
+        """Refuse a wall velocity that crosses its wall (:func:`mlsph_jax.geometry.checks.normal_wall_motion`):
+        the outlines stay where they were set up during a run, so such a wall would move through
+        the particles.  Called by :func:`mlsph_jax.run.setup_run` with the run's Params."""
+        from .geometry.checks import WALL_MOTION_RTOL, normal_wall_motion
+
+        bp = self.points(params)
+        hit = normal_wall_motion(bp.velocity, bp.normal)
+        if hit is None:
+            return
+        b, vn = hit
+        k = int(np.asarray(bp.curve)[b])
+        c = self.curves[k]
+        if k < self.n_walls and "boundary.wall_velocity" in params:
+            what = f"boundary.wall_velocity[{k}]={np.asarray(params['boundary.wall_velocity'])[k].tolist()}"
+        else:
+            full = {**self.default_params(), **dict(params)}
+            what = ", ".join(f"{c.key(f)}={np.asarray(full[c.key(f)]).tolist()}" for f in ("velocity", "omega")
+                            if c.key(f) in full)
+        raise InputError(f"invalid {what}: the wall {c.name!r} moves across itself (normal velocity {vn:.6g} at "
+                         f"x={np.round(np.asarray(bp.x[b]), 6).tolist()}), but walls stay where they were set up, "
+                         f"so it would move through the particles; allowed: a wall velocity along the wall "
+                         f"(|u . n| <= {WALL_MOTION_RTOL:g} of the largest wall speed: a segment sliding along "
+                         "itself, a circle turning about its centre)")
+
     def _box(self):
         return None if self.box is None else (jnp.asarray(self.box[0]), jnp.asarray(self.box[1]))
 

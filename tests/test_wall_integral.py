@@ -445,3 +445,39 @@ def test_couette_on_moving_particles(frame):
     s = _channel_run("configs/couette.toml", "boundary_integral", "case.ny=10", "time.t_end=1.0",
                      f"scheme.frame={frame}")
     assert s["status"] == "ok" and s["metrics"]["linf_u_error"] < 0.02 and abs(s["conservation"]["mass"]) < 1e-12
+
+
+def test_a_wall_velocity_across_the_wall_is_refused_before_a_run():
+    """Issue 17 bad input, "a wall moving through particles": walls stay where they were set up,
+    so every run path (run.setup_run) refuses a wall velocity with a normal component, naming the
+    key and value: a translating or turning body (ellipse), a boundary-integral wall segment or a
+    mirror wall moving along its normal.  Tangential motion runs: a circle turning about its
+    centre, plates sliding along themselves (the built-in Couette)."""
+    import dataclasses
+
+    from mlsph_jax import config
+    from mlsph_jax.cases import build_problem
+    from mlsph_jax.run import setup_run
+    from mlsph_jax.testing import CONFIG_DIR, REDUCED_OVERRIDES
+
+    def problem(name, *sets):
+        return build_problem(config.load(CONFIG_DIR / f"{name}.toml", [*REDUCED_OVERRIDES[name], *sets]))
+
+    def refused(pb, new, *words):
+        new = {k: jnp.asarray(v, jnp.float64) for k, v in new.items()}
+        bad = dataclasses.replace(pb, params=pb.params.updated(new))
+        with pytest.raises(InputError) as e:
+            setup_run(bad)
+        for w in ("moves across itself", "allowed: a", *words):
+            assert w in str(e.value), (w, str(e.value))
+
+    cyl = problem("cylinder")
+    setup_run(dataclasses.replace(cyl, params=cyl.params.updated({"geometry.body.omega": jnp.asarray(2.0)})))
+    refused(cyl, {"geometry.body.velocity": [0.5, 0.0]}, "geometry.body.velocity=[0.5, 0.0]", "'body'")
+    ell = problem("cylinder", "case.body=ellipse", "case.aspect=2.0")
+    refused(ell, {"geometry.body.omega": 1.0}, "geometry.body.omega=1.0")
+    couette = problem("couette")
+    setup_run(couette)   # the top plate slides along itself
+    refused(couette, {"boundary.wall_velocity": [[0.0, 0.0], [1.0, 1e-3]]}, "boundary.wall_velocity[1]=[1.0, 0.001]")
+    bi = problem("couette", "case.walls=boundary_integral")
+    refused(bi, {"boundary.wall_velocity": [[0.0, -0.2], [1.0, 0.0]]}, "boundary.wall_velocity[0]=[0.0, -0.2]")

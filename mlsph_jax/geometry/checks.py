@@ -7,7 +7,11 @@ the key and the value), and the point tests shared with the in-run wall-crossing
 * no fluid particle may be inside a body (outside a container) or beyond a wall segment;
 * the quadrature must resolve the particles: dGamma_b <= ``max_spacing_ratio`` times the local
   particle spacing V^(1/d) of the fluid particle nearest to x_b (the thesis' cylinder has 120
-  wall points for 120 particles on the first ring, ratio 1).
+  wall points for 120 particles on the first ring, ratio 1);
+* before a run (:func:`mlsph_jax.run.setup_run`, every run path): walls stay where they were set
+  up, so a wall velocity must be tangential to its wall, |u_w . n| <= :data:`WALL_MOTION_RTOL`
+  times the largest wall speed (:func:`normal_wall_motion`); a velocity across the wall would move
+  it through the particles.
 """
 
 from __future__ import annotations
@@ -18,6 +22,22 @@ import numpy as np
 
 from ..errors import InputError
 from ..state import Kind, Params
+
+#: Largest wall-normal velocity, relative to the largest wall speed, that a run accepts as tangential
+WALL_MOTION_RTOL = 1e-9
+
+
+def normal_wall_motion(velocity, normal):
+    """Index of the wall point whose velocity crosses its wall most, and that normal component,
+    or None when every |u_b . n_b| <= WALL_MOTION_RTOL max_b |u_b| (tangential motion only: a
+    segment sliding along itself, a circle turning about its centre).  Host side."""
+    v, n = np.asarray(velocity, float), np.asarray(normal, float)
+    vn = np.sum(v * n, axis=-1)
+    speed = float(np.max(np.linalg.norm(v, axis=-1), initial=0.0))
+    b = int(np.argmax(np.abs(vn))) if vn.size else 0
+    if vn.size == 0 or not abs(vn[b]) > WALL_MOTION_RTOL * speed:
+        return None
+    return b, float(vn[b])
 
 
 def cross2(a, b):
