@@ -150,7 +150,7 @@ COARSE = ("case.n_theta=32", "case.r_far=4.0", "case.mach=0.2", "time.t_end=4.0"
           "output.degree_fallback_warn=0.1")    # 8.3 % (the first ring) on a quadratic fit (the config: 2.8 %)
 
 
-@pytest.mark.slow   # CI time; the reduced cylinder configs' fingerprints run the case in the default suite
+# default suite (issue 17 "Tests": a coarse cylinder Re = 40 run with C_D inside a band); 23 s under load
 def test_coarse_re40_drag_in_band():
     """Coarse Re = 40 run (n_theta = 32, far field at 4 D, Mach 0.2 for half the steps, t = 4
     after the impulsive start, 512 particles, ~700 steps): C_D
