@@ -193,6 +193,24 @@ def test_more_devices_than_available_is_refused():
         Simulation(build_problem(cfg), devices=-1)
 
 
+def test_more_shards_than_particles_is_refused_by_the_spatial_layout():
+    """Issue 15 bad input "more devices than the domain decomposition allows": the spatial
+    decomposition gives every shard at least one particle; one shard more than particles is an
+    InputError naming run.devices, the value and the largest allowed count (host side, so it
+    is checked here without that many devices)."""
+    import numpy as np
+
+    from mlsph_jax.run import setup_run
+    from mlsph_jax.spatial import build_layout
+
+    pb = build_problem(config.loads('[case]\nname = "taylor_green_2d"\nn = 8\n'))
+    nl = setup_run(pb).nl
+    x, idx, mask = (np.asarray(a) for a in (pb.particles.x, nl.idx, nl.mask))
+    build_layout(x, idx, mask, pb.particles.n)     # one particle per shard is allowed
+    with pytest.raises(InputError, match=r"invalid run\.devices=65: shard 64 would own no particle .*at most 64"):
+        build_layout(x, idx, mask, pb.particles.n + 1)
+
+
 def test_negative_device_count_is_a_config_error():
     with pytest.raises(ConfigError, match=r"run\.devices"):
         config.loads('[case]\nname = "taylor_green_2d"\nn = 8\n', ["run.devices=-1"])

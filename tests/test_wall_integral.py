@@ -481,3 +481,43 @@ def test_a_wall_velocity_across_the_wall_is_refused_before_a_run():
     refused(couette, {"boundary.wall_velocity": [[0.0, 0.0], [1.0, 1e-3]]}, "boundary.wall_velocity[1]=[1.0, 0.001]")
     bi = problem("couette", "case.walls=boundary_integral")
     refused(bi, {"boundary.wall_velocity": [[0.0, -0.2], [1.0, 0.0]]}, "boundary.wall_velocity[0]=[0.0, -0.2]")
+
+
+def test_a_particle_crossing_the_body_stops_both_run_paths(monkeypatch, tmp_path):
+    """Issue 17: a particle that crosses a wall during a run stops it loudly with the step, time and
+    particle, and the last good snapshot stays on disk.  The first step's candidate of the reduced
+    cylinder config is corrupted (one fluid particle moved to the body's centre) on the driver's
+    path and on the differentiated one (make_simulate / run_differentiable)."""
+    import h5py
+
+    from mlsph_jax import config, differentiable, integrate
+    from mlsph_jax.cases import build_problem
+    from mlsph_jax.differentiable import make_simulate, run_differentiable
+    from mlsph_jax.errors import SimulationError
+    from mlsph_jax.simulation import run_problem
+    from mlsph_jax.testing import CONFIG_DIR, REDUCED_OVERRIDES
+
+    cfg = config.load(CONFIG_DIR / "cylinder.toml", [*REDUCED_OVERRIDES["cylinder"], "output.plots=false",
+                                                      "output.progress=false"])
+    pb = build_problem(cfg)
+    bad = int(np.flatnonzero(np.asarray(pb.particles.kind) == Kind.FLUID)[5])
+    real = integrate.ssp_rk3_step
+
+    def step(p, params, dt, scheme, geom_fn, boundary=None, cache=None):
+        out, ovf, stats, *rest = real(p, params, dt, scheme, geom_fn, boundary, cache)
+        return out.replace(x=out.x.at[bad].set(jnp.zeros(2))), ovf, stats, *rest
+
+    monkeypatch.setattr(integrate, "ssp_rk3_step", step)
+    monkeypatch.setattr(differentiable, "ssp_rk3_step", step)
+    with pytest.raises(SimulationError) as ei:
+        run_problem(pb, cfg, out_dir=tmp_path, quiet=True)
+    e = ei.value
+    assert (Status(e.status) & Status.WALL_CROSSED, e.step, e.time, e.particle) == (Status.WALL_CROSSED, 1, 0.0, bad)
+    assert f"particle {bad}" in str(e) and "step 1" in str(e)
+    with h5py.File(tmp_path / "fields.h5") as f:
+        last = f["snapshots"][sorted(f["snapshots"], key=int)[-1]]
+        np.testing.assert_array_equal(last["x"][()], np.asarray(pb.particles.x))
+    sim = make_simulate(pb, n_steps=3, t_end=0.005, checkpoint="none")   # dt below the CFL step
+    with pytest.raises(SimulationError, match=f"in step 1 starting at t=0, particle {bad}") as ei:
+        run_differentiable(sim, pb.params, pb.particles)
+    assert Status(ei.value.status) & Status.WALL_CROSSED
