@@ -367,18 +367,25 @@ def _channel_run(path, walls, *overrides):
     return run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True).summary
 
 
-@pytest.mark.slow   # CI time; test_poiseuille_start_up_beats_the_mirror_ghosts stays in the default suite
-def test_couette_matches_the_exact_series_at_least_as_well_as_mirror_ghosts():
-    """Start-up Couette (Re 10, ny = 10, t = 1).  Measured L-inf errors: 0.0082 with the boundary
-    integral (0.0166 before the wall rows were made linearly consistent, decision 60), 0.0526
-    with mirror ghosts (the issue's target: <= 2x the ghosts')."""
+def test_couette_with_boundary_integral_walls_matches_the_exact_series():
+    """Start-up Couette (Re 10, ny = 10, t = 1; ~12 s) on boundary-integral walls against the exact
+    series: measured L-inf error 0.0082 (0.0166 before the wall rows were made linearly consistent,
+    decision 60; mirror ghosts 0.0526, compared in the slow test below), no wall-normal velocity,
+    mass conserved to round-off while the plates exchange momentum with the fluid."""
     sbi = _channel_run("configs/couette.toml", "boundary_integral", "case.ny=10", "time.t_end=1.0")
-    mg = _channel_run("configs/couette.toml", "mirror_ghosts", "case.ny=10", "time.t_end=1.0")["metrics"]
     bi = sbi["metrics"]
-    assert bi["linf_u_error"] <= 2.0 * mg["linf_u_error"]
     assert bi["linf_u_error"] < 0.01 and bi["max_abs_v"] < 1e-12
     # the plates exchange momentum with the fluid: reported as such, not as a drift of the scheme
     assert sbi["conservation_info"]["label"] == "change (boundary fluxes)" and abs(sbi["conservation"]["mass"]) < 1e-12
+
+
+@pytest.mark.slow   # CI time: the boundary-integral run alone is the default test above
+def test_couette_matches_the_exact_series_at_least_as_well_as_mirror_ghosts():
+    """The same start-up Couette: the issue's target, L-inf error <= 2x the mirror ghosts'
+    (measured 0.0082 against 0.0526)."""
+    bi = _channel_run("configs/couette.toml", "boundary_integral", "case.ny=10", "time.t_end=1.0")["metrics"]
+    mg = _channel_run("configs/couette.toml", "mirror_ghosts", "case.ny=10", "time.t_end=1.0")["metrics"]
+    assert bi["linf_u_error"] <= 2.0 * mg["linf_u_error"]
 
 
 def test_poiseuille_start_up_beats_the_mirror_ghosts():
