@@ -98,14 +98,14 @@ class MirrorWalls:
                 jnp.where(hit, jnp.argmax(bad), -1).astype(jnp.int32))
 
     def check_motion(self, params: Params) -> None:
-        """Refuse a wall velocity with a component along the wall's normal axis: the walls (and
-        the ghost set) stay where they were set up, so such a wall would move through the
-        particles.  Called by :func:`mlsph_jax.run.setup_run` with the run's Params."""
-        from .geometry.checks import WALL_MOTION_RTOL, normal_wall_motion
+        """Refuse a wall velocity with a component along the wall's normal axis, or a non-finite
+        one: the walls (and the ghost set) stay where they were set up, so such a wall would move
+        through the particles.  Called by :func:`mlsph_jax.run.setup_run` with the problem's Params."""
+        from .geometry.checks import WALL_MOTION_RTOL, normal_wall_motion, wall_motion_problem
 
         if "boundary.wall_velocity" not in params:
             return
-        uW = np.asarray(params["boundary.wall_velocity"], float)
+        uW = np.asarray(params["boundary.wall_velocity"], np.float64)
         normal = np.zeros_like(uW)
         for k, ax in enumerate(self.axis):
             normal[k, ax] = 1.0
@@ -114,10 +114,9 @@ class MirrorWalls:
             return
         k, vn = hit
         raise InputError(f"invalid boundary.wall_velocity[{k}]={uW[k].tolist()}: the wall x[{self.axis[k]}] = "
-                         f"{self.position[k]:.10g} moves across itself (normal velocity {vn:.6g}), but walls stay "
-                         "where they were set up, so it would move through the particles; allowed: a velocity "
-                         f"along the wall (component {self.axis[k]} zero, to {WALL_MOTION_RTOL:g} of the largest "
-                         "wall speed)")
+                         f"{self.position[k]:.10g} {wall_motion_problem(vn)}, but walls stay where they were set "
+                         "up, so it would move through the particles; allowed: a finite velocity along the wall "
+                         f"(component {self.axis[k]} zero, to {WALL_MOTION_RTOL:g} of the largest wall speed)")
 
     def apply(self, p: Particles, params: Params) -> Particles:
         """Regenerate every ghost from its parent (positions, volumes, states)."""

@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -178,9 +179,12 @@ def setup_run(problem, *, headroom: float = 1.3, min_moving_headroom: bool | flo
     """The :class:`RunSetup` of ``problem`` (sized from ``particles``, default the problem's).
 
     ``nspec``: use this spec instead of sizing one (the list is built from it).  Walls whose
-    velocity crosses them are refused here, on every run path (``check_motion`` of the boundary)."""
+    velocity crosses them are refused here, on every run path (``check_motion`` of the boundary,
+    with the problem's Params; skipped when they are traced, e.g. a problem built inside a
+    transformation: the check is host side)."""
     check_motion = getattr(problem.boundary, "check_motion", None)
-    if check_motion is not None:
+    if check_motion is not None and not any(isinstance(v, jax.core.Tracer)
+                                            for v in jax.tree_util.tree_leaves(dict(problem.params))):
         check_motion(problem.params)
     p = problem.particles if particles is None else particles
     if nspec is None:

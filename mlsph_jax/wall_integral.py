@@ -274,12 +274,16 @@ class BoundaryIntegralWalls:
         return quadrature(self.curves, Params(full))
 
     def check_motion(self, params) -> None:
-        """Refuse a wall velocity that crosses its wall (:func:`mlsph_jax.geometry.checks.normal_wall_motion`):
-        the outlines stay where they were set up during a run, so such a wall would move through
-        the particles.  Called by :func:`mlsph_jax.run.setup_run` with the run's Params."""
-        from .geometry.checks import WALL_MOTION_RTOL, normal_wall_motion
+        """Refuse a wall velocity that crosses its wall or is not finite
+        (:func:`mlsph_jax.geometry.checks.normal_wall_motion`): the outlines stay where they were
+        set up during a run, so such a wall would move through the particles.  Called by
+        :func:`mlsph_jax.run.setup_run` with the problem's Params (evaluated in float64, so that a
+        float32 run's turning circle is not refused for its round-off)."""
+        from .geometry.checks import WALL_MOTION_RTOL, normal_wall_motion, wall_motion_problem
 
-        bp = self.points(params)
+        p64 = Params({k: np.asarray(v, np.float64) if np.issubdtype(np.asarray(v).dtype, np.floating) else v
+                      for k, v in dict(params).items()})
+        bp = self.points(p64)
         hit = normal_wall_motion(bp.velocity, bp.normal)
         if hit is None:
             return
@@ -292,9 +296,9 @@ class BoundaryIntegralWalls:
             full = {**self.default_params(), **dict(params)}
             what = ", ".join(f"{c.key(f)}={np.asarray(full[c.key(f)]).tolist()}" for f in ("velocity", "omega")
                             if c.key(f) in full)
-        raise InputError(f"invalid {what}: the wall {c.name!r} moves across itself (normal velocity {vn:.6g} at "
-                         f"x={np.round(np.asarray(bp.x[b]), 6).tolist()}), but walls stay where they were set up, "
-                         f"so it would move through the particles; allowed: a wall velocity along the wall "
+        raise InputError(f"invalid {what}: the wall {c.name!r} {wall_motion_problem(vn)} at "
+                         f"x={np.round(np.asarray(bp.x[b]), 6).tolist()}, but walls stay where they were set up, "
+                         f"so it would move through the particles; allowed: a finite wall velocity along the wall "
                          f"(|u . n| <= {WALL_MOTION_RTOL:g} of the largest wall speed: a segment sliding along "
                          "itself, a circle turning about its centre)")
 

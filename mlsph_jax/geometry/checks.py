@@ -8,8 +8,9 @@ the key and the value), and the point tests shared with the in-run wall-crossing
 * the quadrature must resolve the particles: dGamma_b <= ``max_spacing_ratio`` times the local
   particle spacing V^(1/d) of the fluid particle nearest to x_b (the thesis' cylinder has 120
   wall points for 120 particles on the first ring, ratio 1);
-* before a run (:func:`mlsph_jax.run.setup_run`, every run path): walls stay where they were set
-  up, so a wall velocity must be tangential to its wall, |u_w . n| <= :data:`WALL_MOTION_RTOL`
+* when a run is set up (:func:`mlsph_jax.run.setup_run`, every run path; the problem's Params,
+  not Params given later to a differentiated run's function): walls stay where they were set
+  up, so a wall velocity must be finite and tangential to its wall, |u_w . n| <= :data:`WALL_MOTION_RTOL`
   times the largest wall speed (:func:`normal_wall_motion`); a velocity across the wall would move
   it through the particles.
 """
@@ -28,16 +29,30 @@ WALL_MOTION_RTOL = 1e-9
 
 
 def normal_wall_motion(velocity, normal):
-    """Index of the wall point whose velocity crosses its wall most, and that normal component,
-    or None when every |u_b . n_b| <= WALL_MOTION_RTOL max_b |u_b| (tangential motion only: a
-    segment sliding along itself, a circle turning about its centre).  Host side."""
+    """Index of the wall point whose velocity crosses its wall most, and that normal component
+    (NaN for a non-finite velocity, which is always refused), or None when every |u_b . n_b| <=
+    WALL_MOTION_RTOL max_b |u_b| (tangential motion only: a segment sliding along itself, a circle
+    turning about its centre).  Host side; give float64 velocities and normals (float32 round-off
+    of a turning circle is ~1e-8 of its speed)."""
     v, n = np.asarray(velocity, float), np.asarray(normal, float)
+    if v.size == 0:
+        return None
+    bad = ~np.all(np.isfinite(v), axis=-1)
+    if bad.any():
+        return int(np.argmax(bad)), float("nan")
     vn = np.sum(v * n, axis=-1)
-    speed = float(np.max(np.linalg.norm(v, axis=-1), initial=0.0))
-    b = int(np.argmax(np.abs(vn))) if vn.size else 0
-    if vn.size == 0 or not abs(vn[b]) > WALL_MOTION_RTOL * speed:
+    speed = float(np.max(np.linalg.norm(v, axis=-1)))
+    b = int(np.argmax(np.abs(vn)))
+    if abs(vn[b]) <= WALL_MOTION_RTOL * speed:
         return None
     return b, float(vn[b])
+
+
+def wall_motion_problem(vn: float) -> str:
+    """The phrase of a refused wall velocity (:func:`normal_wall_motion`'s normal component)."""
+    if not math.isfinite(vn):
+        return "has a non-finite velocity"
+    return f"moves across itself (normal velocity {vn:.6g})"
 
 
 def cross2(a, b):
