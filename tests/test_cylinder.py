@@ -163,6 +163,37 @@ def test_coarse_re40_drag_in_band():
     assert 0.97 * RE40_TARGETS["cd"][0] < cd < CD_RE20, m
     assert abs(m["cl"]) < 0.01 * cd
     assert 0.6 < m["cd_pressure"] / cd < 0.75, m
+    # the flow has separated on the rear half (measured 47.96 deg from the base at t = 4), at the
+    # same angle on both surfaces (a symmetric flow)
+    assert 0.0 < m["separation_angle"] < 90.0, m
+    assert m["separation_angle_lower"] == pytest.approx(m["separation_angle"], abs=1e-9)
+
+
+def test_skin_friction_sign_angle_and_separation_point():
+    """body_cf's convention on a circle whose every wall point feels the same downstream traction
+    (tau, 0): C_f = tau |sin theta| / q_inf on both surfaces (positive: friction pointing from the
+    front towards the base), the angle measured from the base; separation_angles finds the linear
+    zero crossing of C_f walking from its maximum towards the base, 0 without one."""
+    from types import SimpleNamespace
+
+    from mlsph_jax.cases.cylinder import body_cf, separation_angles
+
+    n, R, tau, q = 40, 0.5, 0.3, 0.5
+    th = 2 * math.pi * (np.arange(n) + 0.5) / n
+    xb = R * np.stack([np.cos(th), np.sin(th)], 1)
+    walls = SimpleNamespace(curves=[SimpleNamespace(name="body")])
+    tn = -np.broadcast_to([tau, 0.0], (n, 2))                    # f_b = -tau_b n_b = (tau, 0)
+    phi, upper, cf = body_cf(walls, xb, -xb / R, np.zeros(n, int), tn, (0.0, 0.0), (1.0, 0.0), q)
+    np.testing.assert_allclose(cf, tau * np.abs(np.sin(th)) / q, atol=1e-14)
+    np.testing.assert_allclose(phi, np.abs(np.angle(np.exp(1j * th))), atol=1e-14)
+    np.testing.assert_array_equal(upper, np.sin(th) > 0)
+    assert separation_angles(phi, upper, cf) == (0.0, 0.0)      # attached everywhere
+    # a friction that reverses 50 deg from the base on the upper surface, 40 deg on the lower
+    zero = np.where(upper, np.radians(50.0), np.radians(40.0))
+    cf2 = np.sin(phi) * (phi - zero)
+    up_deg, low_deg = separation_angles(phi, upper, cf2)
+    assert abs(up_deg - 50.0) < 0.2 and abs(low_deg - 40.0) < 0.2     # linear between points 9 deg apart
+    assert separation_angles(phi, upper, -np.abs(cf2)) == (0.0, 0.0)  # no attached friction at all
 
 
 ELLIPSE = ('case.body="ellipse"', "case.aspect=2.0", "case.alpha=5.0")

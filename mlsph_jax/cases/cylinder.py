@@ -111,13 +111,22 @@ body's quadrature points (:meth:`~mlsph_jax.wall_integral.BoundaryIntegralWalls.
 * ``cp_front``, ``cp_base``: C_p = (p_b - p_inf) / (1/2 rho_inf U_inf^2) at theta = pi (front
   stagnation point) and theta = 0 (base), p_b the wall pressure of the boundary integral,
   interpolated in angle from the four nearest quadrature points (cubic Lagrange);
+* ``separation_angle``, ``separation_angle_lower``: where the flow separates on the upper
+  (left of the stream) and lower surface, in degrees from the base (the downstream end of the
+  body seen from its centre), 0 when it does not separate: the first sign change of the skin
+  friction C_f met when walking from the surface's largest C_f (just behind the front stagnation
+  point) towards the base, linear in angle between the two quadrature points around it
+  (:func:`separation_angles`).  C_f = tau_w / (1/2 rho_inf U_inf^2) with tau_w the viscous
+  traction on the body along the surface tangent pointing from the front towards the base
+  (positive in attached flow; :func:`body_cf`; plotted in ``cf.png``);
 * ``recirculation_length`` (metrics only): L_w / D, the distance from the base to where u_x on
   the wake axis y = 0 turns positive again behind the first ring that flows back; u_x on the
   axis is the mean of the two particle rays at theta = +-dtheta/2, linear in r between rings
   (0 when nothing flows back; the first ring next to the wall may be slightly positive, since
   no-slip is imposed weakly through the boundary term).
 
-Plots: ``cp.png`` (C_p(theta) with thesis Table 4.1's points) and ``velocity_field.png``.
+Plots: ``cp.png`` (C_p(theta) with thesis Table 4.1's points), ``cf.png`` (C_f(theta) and the
+separation points) and ``velocity_field.png``.
 """
 
 from __future__ import annotations
@@ -473,17 +482,21 @@ def build(cfg: Mapping) -> Problem:
     @jax.jit
     def wall_diagnostics(p: Particles, P):
         """The jnp part of the diagnostics in one compiled call (op by op it cost 0.2-0.4 s per
-        time-series sample, decision 70): the coefficients and the wall pressure."""
+        time-series sample, decision 70): the coefficients, the wall pressure and the viscous
+        traction tau_b n_b."""
         prim = to_primitive(p.U, eos, P)
-        bp, _, _, pb, _ = walls.wall_state(p, P, scheme, prim)
-        return coefficients(p, 0.0, P), bp.x, bp.curve, pb
+        bp, _, _, pb, tn = walls.wall_state(p, P, scheme, prim)
+        return coefficients(p, 0.0, P), bp.x, bp.normal, bp.curve, pb, tn
 
     def diagnostics(p: Particles, t: float, P) -> dict[str, float]:
-        co, xb, curve, pb = wall_diagnostics(p, P)
+        co, xb, normal, curve, pb, tn = wall_diagnostics(p, P)
         out = {k: float(v) for k, v in co.items()}
         theta, cp = body_cp(walls, xb, curve, pb, p_inf, q_inf)
         out["cp_front"] = float(periodic_interpolate(theta, cp, math.pi))
         out["cp_base"] = float(periodic_interpolate(theta, cp, 0.0))
+        if scheme.viscous:
+            phi, upper, cf = body_cf(walls, xb, normal, curve, tn, P[body.key("centre")], stream_velocity(P), q_inf)
+            out["separation_angle"], out["separation_angle_lower"] = separation_angles(phi, upper, cf)
         return out
 
     def metrics(p: Particles, t: float, P) -> dict[str, float]:
@@ -501,6 +514,10 @@ def build(cfg: Mapping) -> Problem:
 
     def plot(out: Path, p: Particles, t: float, P) -> None:
         plot_cp(Path(out) / "cp.png", *wall_cp(p, P, walls, scheme, p_inf, q_inf), title=_title(cfg, p.n, t))
+        if scheme.viscous:
+            _, xb, normal, curve, _, tn = wall_diagnostics(p, P)
+            plot_cf(Path(out) / "cf.png", *body_cf(walls, xb, normal, curve, tn, P[body.key("centre")],
+                                                   stream_velocity(P), q_inf), title=_title(cfg, p.n, t))
         plot_field(Path(out) / "velocity_field.png", p, P, scheme, R, title=_title(cfg, p.n, t),
                    outline=None if c["body"] == "circle" else np.asarray(walls.points(P).x))
 
@@ -580,6 +597,48 @@ def body_cp(walls, xb, curve, pb, p_inf: float, q_inf: float):
     x = np.asarray(xb)[on]
     theta = np.mod(np.arctan2(x[:, 1], x[:, 0]), 2.0 * math.pi)
     return theta, (np.asarray(pb)[on] - p_inf) / q_inf
+
+
+def body_cf(walls, xb, normal, curve, tn, centre, u_inf, q_inf: float):
+    """``(phi[Nb], upper[Nb], cf[Nb])`` at the body's quadrature points: phi the angle from the base
+    seen from ``centre`` (0 downstream along ``u_inf``, pi at the front), ``upper`` whether the
+    point lies left of the stream, and the skin friction C_f = f_b . s_b / q_inf, f_b = -tau_b n_b
+    the viscous traction on the body (``tn`` = tau_b n_b of
+    :meth:`~mlsph_jax.wall_integral.BoundaryIntegralWalls.wall_state`, n_b into the body) and s_b
+    the unit tangent pointing from the front towards the base along the point's surface (module
+    docstring)."""
+    on = np.asarray(curve) == [cv.name for cv in walls.curves].index(BODY)
+    r = np.asarray(xb)[on] - np.asarray(centre, float)
+    n = np.asarray(normal)[on]
+    e_d = np.asarray(u_inf, float) / np.linalg.norm(np.asarray(u_inf, float))
+    e_l = np.array([-e_d[1], e_d[0]])
+    upper = r @ e_l > 0.0
+    t_ccw = np.stack([n[:, 1], -n[:, 0]], axis=1)          # counter-clockwise along the body (n into it)
+    s = np.where(upper[:, None], -t_ccw, t_ccw)             # front -> base on each surface
+    cf = np.sum(-np.asarray(tn)[on] * s, axis=1) / q_inf
+    phi = np.arctan2(np.abs(r @ e_l), r @ e_d)              # 0 at the base, pi at the front
+    return phi, upper, cf
+
+
+def separation_angles(phi, upper, cf) -> tuple[float, float]:
+    """Separation angles in degrees from the base on the upper and the lower surface (module
+    docstring): from each surface's largest C_f towards the base (decreasing ``phi``), the first
+    point with C_f <= 0, linear in phi between it and the point before; 0 when C_f stays
+    positive down to the base (no separation)."""
+    out = []
+    for side in (np.asarray(upper), ~np.asarray(upper)):
+        ph, f = np.asarray(phi)[side], np.asarray(cf)[side]
+        order = np.argsort(-ph)                               # front -> base
+        ph, f = ph[order], f[order]
+        k0 = int(np.argmax(f))
+        below = np.flatnonzero(f[k0:] <= 0.0)
+        if f[k0] <= 0.0 or below.size == 0:
+            out.append(0.0)
+            continue
+        k = k0 + int(below[0])
+        a = ph[k - 1] + (ph[k] - ph[k - 1]) * f[k - 1] / (f[k - 1] - f[k])
+        out.append(float(np.degrees(a)))
+    return out[0], out[1]
 
 
 def periodic_interpolate(theta: np.ndarray, f: np.ndarray, theta0: float) -> float:
@@ -662,6 +721,27 @@ def plot_cp(path: Path, theta, cp, title: str = "") -> None:
     ax.set_ylabel("C_p")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=6)
+    ax.set_title(title, fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+def plot_cf(path: Path, phi, upper, cf, title: str = "") -> None:
+    """Skin friction C_f against the angle from the base on both surfaces, the separation points
+    marked."""
+    fig, ax = subplots(figsize=(6.0, 4.2))
+    upper = np.asarray(upper)
+    for side, name, mark in ((upper, "upper", "o-"), (~upper, "lower", "s--")):
+        order = np.argsort(phi[side])
+        ax.plot(np.degrees(phi[side][order]), cf[side][order], mark, ms=3, label=f"{name} surface")
+    for a in separation_angles(phi, upper, cf):
+        if a > 0.0:
+            ax.axvline(a, color="0.5", lw=0.8)
+    ax.axhline(0.0, color="k", lw=0.6)
+    ax.set_xlabel("angle from the base [deg] (0 = base, 180 = front)")
+    ax.set_ylabel("C_f")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7)
     ax.set_title(title, fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
