@@ -717,10 +717,15 @@ def plot_cp(path: Path, theta, cp, title: str = "") -> None:
     ax.plot(np.degrees(theta[order]), cp[order], "o-", ms=3, label="MLSPH-ALE (wall p_b)")
     for name, (_, front, base) in ref.TABLE_4_1.items():
         ax.plot([0.0, 180.0, 360.0], [base, front, base], "x", ms=6, label=name)
-    ax.set_xlabel("theta [deg] (0 = base, 180 = front)")
-    ax.set_ylabel("C_p")
+    _save_angle_plot(fig, ax, path, "theta [deg] (0 = base, 180 = front)", "C_p", title, legend=6)
+
+
+def _save_angle_plot(fig, ax, path: Path, xlabel: str, ylabel: str, title: str, legend: int) -> None:
+    """Labels, grid, legend and title of a wall-distribution plot, then save it."""
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=6)
+    ax.legend(fontsize=legend)
     ax.set_title(title, fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -738,13 +743,7 @@ def plot_cf(path: Path, phi, upper, cf, title: str = "") -> None:
         if a > 0.0:
             ax.axvline(a, color="0.5", lw=0.8)
     ax.axhline(0.0, color="k", lw=0.6)
-    ax.set_xlabel("angle from the base [deg] (0 = base, 180 = front)")
-    ax.set_ylabel("C_f")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=7)
-    ax.set_title(title, fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    _save_angle_plot(fig, ax, path, "angle from the base [deg] (0 = base, 180 = front)", "C_f", title, legend=7)
 
 
 def plot_field(path: Path, p: Particles, P, scheme, radius: float, title: str = "", grid: int = 161,
