@@ -127,6 +127,7 @@ def steady_study(overrides, ratios) -> list[dict]:
             m = s["metrics"]
             row = {"local_step_ratio": ratio, "status": s["status"], "steps": int(s["n_steps"]),
                    "t_final": s["t_final"], "steady": s["steady_state"], "wall_s": s["wall_time_s"],
+                   "compile_s": s.get("compile_time_s"), "updates_per_s": s.get("particle_updates_per_s"),
                    **{k: m[k] for k in ("cd", "cd_pressure", "cp_front", "cp_base", "recirculation_length")}}
         except Exception as e:   # a diverging variant is a result of the study, not a crash of it
             row = {"local_step_ratio": ratio, "status": f"failed: {e}"}

@@ -92,7 +92,8 @@ def main(argv=None) -> int:
         a, b = r["inlined"], r["once"]
         print(f"d={r['d']} degree={r['degree']} {r['derivative']:12s} B={r['B']:5d} K={r['K']:3d}: "
               f"compile {a['compile_s']:.2f} -> {b['compile_s']:.2f} s, HLO {a['hlo_instructions']} -> "
-              f"{b['hlo_instructions']}, run best {a['best_ms']:.3f} -> {b['best_ms']:.3f} ms, median "
+              f"{b['hlo_instructions']}, run best {a['best_ms']:.3f} -> {b['best_ms']:.3f} ms "
+              f"({r['B'] / a['best_ms'] * 1e3:.3g} -> {r['B'] / b['best_ms'] * 1e3:.3g} particles/s), median "
               f"{a['median_ms']:.3f} -> {b['median_ms']:.3f} ms, bitwise equal {r['bitwise_equal']}, "
               f"load {r['load']:.1f}", flush=True)
         rows.append(r)

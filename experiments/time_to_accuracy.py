@@ -157,8 +157,9 @@ def main(argv=None) -> int:
     rows = []
     if args.extra:
         print("overrides of every run:", " ".join(args.extra))
-    print("| case | n | scheme | frame | layout | error | signed | wall [s] | compile [s] | steps | status |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| case | n | scheme | frame | layout | error | signed | wall [s] | compile [s] | steps | updates/s "
+          "| status |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for frame in args.frames:
         for layout in args.layouts:
             for scheme in args.schemes:
@@ -169,7 +170,8 @@ def main(argv=None) -> int:
                     print(f"| {args.case}{'' if args.re is None else f' Re {args.re:g}'} | {n} | {scheme} | {frame} | "
                           f"{layout} | {err:.3g} | {r.get('ke_signed_error', math.nan):+.3g} | {r['wall_s']:.1f} | "
                           f"{r.get('compile_s') or math.nan:.1f} | "
-                          f"{r.get('n_steps', '-')} | {r['status']} |", flush=True)
+                          f"{r.get('n_steps', '-')} | {r.get('updates_per_s') or math.nan:.3g} | {r['status']} |",
+                          flush=True)
     best = time_to_target(rows, target)
     print(f"\nwall time to error <= {target:g} (cheapest run that reaches it):")
     for key, b in best.items():
