@@ -75,6 +75,14 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--restart", metavar="DIR",
                    help="continue the interrupted or failed run in DIR from its last checkpoint (bit for bit as if "
                         "it had not stopped); CONFIG is optional (default DIR/config.toml) and must match the run")
+    r.add_argument("--distributed", action="store_true",
+                   help="join a multi-process run (jax.distributed.initialize) before anything else: the cluster "
+                        "from the environment (SLURM, Open MPI), or from --coordinator, --num-processes and "
+                        "--process-id; every process runs the same command, with run.devices=0 for every device "
+                        "of every process; process 0 writes the outputs (docs/performance.md, Launch)")
+    r.add_argument("--coordinator", metavar="HOST:PORT", help="address of process 0 (implies --distributed)")
+    r.add_argument("--num-processes", type=int, metavar="N", help="number of processes (implies --distributed)")
+    r.add_argument("--process-id", type=int, metavar="K", help="this process, 0..N-1 (implies --distributed)")
     v = sub.add_parser("validate", parents=[plug], help="check a config without running it")
     v.add_argument("config", nargs="?", help="TOML config file or built-in config name")
     v.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", action="extend")
@@ -148,6 +156,43 @@ def _fix_set(args) -> None:
     elif loose:
         raise ConfigError(f"invalid --set value {loose[0]!r}; allowed: KEY=VALUE, e.g. case.n=400 (and at most one "
                           "CONFIG)")
+
+
+def init_distributed(args) -> None:
+    """``mlsph run --distributed`` (or any of ``--coordinator``, ``--num-processes``,
+    ``--process-id``, which must then come together): ``jax.distributed.initialize`` before a
+    plugin, a config or a computation touches JAX's backends.  Without the three options JAX reads
+    the cluster from the environment (SLURM, Open MPI)."""
+    opts = {"--coordinator": args.coordinator, "--num-processes": args.num_processes,
+            "--process-id": args.process_id}
+    given = [k for k, v in opts.items() if v is not None]
+    if not (args.distributed or given):
+        return
+    if given and len(given) < 3:
+        missing = [k for k in opts if k not in given]
+        raise InputError(f"invalid {' '.join(f'{k} {opts[k]}' for k in given)} without {', '.join(missing)}; "
+                         "allowed: all three of --coordinator HOST:PORT --num-processes N --process-id K, or none "
+                         "(--distributed alone: the cluster from the environment)")
+    kwargs = {}
+    if given:
+        coord, n, k = args.coordinator, args.num_processes, args.process_id
+        host, sep, port = coord.rpartition(":")
+        if not (sep and host and port.isdigit() and 0 < int(port) < 65536):
+            raise InputError(f"invalid --coordinator {coord!r}; allowed: HOST:PORT of process 0, e.g. 10.0.0.1:12345")
+        if n < 1:
+            raise InputError(f"invalid --num-processes {n}; allowed: an int >= 1")
+        if not 0 <= k < n:
+            raise InputError(f"invalid --process-id {k}; allowed: 0..{n - 1} (--num-processes {n})")
+        kwargs = {"coordinator_address": coord, "num_processes": n, "process_id": k}
+    import jax
+
+    try:
+        jax.distributed.initialize(**kwargs)
+    except (ValueError, RuntimeError) as e:
+        how = ("the coordinator did not answer or the processes disagree" if kwargs
+               else "no cluster found in the environment (SLURM, Open MPI)")
+        raise InputError(f"invalid --distributed: jax.distributed.initialize failed ({how}: {e}); allowed: a "
+                         "cluster environment or --coordinator HOST:PORT --num-processes N --process-id K") from None
 
 
 def cmd_run(args) -> int:
@@ -400,6 +445,8 @@ def load_plugins(plugins) -> None:
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
+        if args.command == "run":
+            init_distributed(args)      # before a plugin or a config touches JAX's backends
         load_plugins(getattr(args, "plugin", []))
         _fix_set(args)
         return {"run": cmd_run, "validate": cmd_validate, "cases": cmd_cases, "init": cmd_init,

@@ -277,6 +277,9 @@ class Simulation:
         if restart and overwrite:
             raise InputError("invalid overwrite=True with restart=True (--overwrite with --restart): overwriting "
                              "deletes the run a restart continues; allowed: one of them")
+        if restart and jax.process_count() > 1:
+            raise InputError(f"invalid restart=True (--restart) with {jax.process_count()} processes: the checkpoint "
+                             "is written and read by process 0 only; allowed: a restart in one process")
         if restart and out is None:
             raise InputError("invalid restart=True without out_dir; allowed: the output folder of the run to "
                              "continue")
@@ -335,33 +338,45 @@ class Simulation:
         else:
             geom = self._geom(carry.particles)
         carry = self._relayout(carry)
-        if writer and not restart:   # degrees at t = 0: the Eulerian geometry's (moving particles: -1, no step yet)
+        # several processes: a gather is a collective, so every process takes part in the ones whose
+        # result process 0 writes (the snapshots, the checkpoints); the others skip the writing
+        multi = jax.process_count() > 1
+        if (writer or multi) and not restart:   # degrees at t = 0: the Eulerian geometry's (moving: -1, no step yet)
             deg0 = carry.degree if geom is None else self._host(geom.degree)
-            writer.write(0.0, {**snapshot_fields(pb.particles, pb.params, pb.scheme),
-                               **fallback.snapshot_fields(deg0, pb.scheme)}, attrs={"step": 0})
+            if writer:
+                writer.write(0.0, {**snapshot_fields(pb.particles, pb.params, pb.scheme),
+                                   **fallback.snapshot_fields(deg0, pb.scheme)}, attrs={"step": 0})
+        last_snapshot = [int(carry.step)]     # the step of the last snapshot (t = 0, or the checkpoint's)
         params = pb.params if self.sharding is None else self.sharding.replicate(pb.params)
         compile_time = chunk_time = 0.0
         memory = {}
         step_stop = self._place(jnp.asarray(self.max_steps, jnp.int32))
 
         def checkpoint(next_target: int, status: str):
+            if out is None and not multi:
+                return
+            host_p, host_deg = self._host(carry.particles), self._host(carry.degree)   # every process
             if out is None:
                 return
             write_checkpoint(out, Checkpoint(
-                particles=self._host(carry.particles), t=np.asarray(carry.t), step=np.asarray(carry.step),
+                particles=host_p, t=np.asarray(carry.t), step=np.asarray(carry.step),
                 dt_last=np.asarray(carry.dt_last), mood=np.asarray(carry.mood), next_target=next_target,
                 n_snapshots=writer.count, nspec=dataclasses.asdict(self.nspec), geom_source=geom_src,
                 regrowths=self._regrowths, regrowth_log=self.regrowth_log, series=series, vel_prev=vel_prev,
                 t_prev=t_prev, steady=steady, settings=settings, config=config, case=pb.case, status=status,
                 wall_time_s=wall_before + time.perf_counter() - t_wall0,
-                compile_time_s=compile_before + compile_time, degree=np.asarray(self._host(carry.degree)),
+                compile_time_s=compile_before + compile_time, degree=np.asarray(host_deg),
                 fallback=np.asarray(carry.fallback)))
 
         def snapshot():
-            if writer and int(carry.step) != int(writer.snapshot_attrs(writer.count - 1).get("step", -1)):
-                writer.write(float(carry.t), {**snapshot_fields(self._host(carry.particles), pb.params, pb.scheme),
-                                              **fallback.snapshot_fields(self._host(carry.degree), pb.scheme)},
-                             attrs={"step": int(carry.step)})
+            step = int(carry.step)
+            if step == last_snapshot[0] or not (writer or multi):
+                return
+            host_p, host_deg = self._host(carry.particles), self._host(carry.degree)   # every process
+            if writer:
+                writer.write(float(carry.t), {**snapshot_fields(host_p, pb.params, pb.scheme),
+                                              **fallback.snapshot_fields(host_deg, pb.scheme)}, attrs={"step": step})
+            last_snapshot[0] = step
 
         warned = set()
 

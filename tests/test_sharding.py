@@ -251,6 +251,44 @@ def test_two_processes_with_the_spatial_decomposition_give_the_one_device_number
         _assert_same(two_devices["one"], out)
 
 
+@pytest.mark.slow
+def test_mlsph_run_distributed_on_two_processes_gives_the_one_process_numbers(tmp_path):
+    """`mlsph run --coordinator --num-processes --process-id` (the CLI's jax.distributed launch,
+    docs/performance.md "Launch"): two processes on localhost, one CPU device each, the same
+    command with run.devices=0; process 0 writes the outputs, whose metrics and conservation
+    equal a one-process run's to round-off (the sharded partitioner may sum in another order)."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "JAX_PLATFORMS": "cpu",
+           "XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=1".strip()}
+    common = [sys.executable, "-m", "mlsph_jax.cli", "run", "taylor_green_2d", "--quiet",
+              "--set", "case.n=8", "time.t_end=0.05", "output.snapshots=1", "output.plots=false"]
+    port = str(_free_port())
+    procs = [subprocess.Popen([*common, "run.devices=0", "--out", str(tmp_path / "two"), "--coordinator",
+                               f"127.0.0.1:{port}", "--num-processes", "2", "--process-id", str(k)],
+                              env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for k in range(2)]
+    for p in procs:
+        _, err = p.communicate(timeout=600)
+        assert p.returncode == 0, err[-3000:]
+    one = subprocess.run([*common, "--out", str(tmp_path / "one")], env=env, capture_output=True, text=True,
+                         timeout=600)
+    assert one.returncode == 0, one.stderr[-3000:]
+    a = json.loads((tmp_path / "one" / "summary.json").read_text())
+    b = json.loads((tmp_path / "two" / "summary.json").read_text())
+    assert (a["devices"], b["devices"]) == (1, 2) and a["n_steps"] == b["n_steps"] > 1
+    for group in ("metrics", "conservation"):
+        for k, v in a[group].items():
+            assert b[group][k] == pytest.approx(v, rel=1e-12, abs=1e-13), (group, k)
+
+
+def test_mlsph_run_distributed_options_are_checked_first():
+    """The launch options come together and are checked before JAX is initialised (exit 2, naming
+    the option, the value and what is allowed)."""
+    from mlsph_jax.cli import main
+
+    assert main(["run", "--coordinator", "127.0.0.1:1234"]) == 2
+    assert main(["run", "--coordinator", "nohost", "--num-processes", "2", "--process-id", "0"]) == 2
+    assert main(["run", "--coordinator", "h:1", "--num-processes", "2", "--process-id", "2"]) == 2
+
+
 # --------------------------------------------------------------------------------------------
 # spatial decomposition (run.decomposition = "spatial", mlsph_jax.spatial)
 # --------------------------------------------------------------------------------------------
