@@ -168,6 +168,9 @@ def init_distributed(args) -> None:
     given = [k for k, v in opts.items() if v is not None]
     if not (args.distributed or given):
         return
+    if args.restart is not None:
+        raise InputError(f"invalid --restart {args.restart} with {' '.join(given) or '--distributed'}: the checkpoint "
+                         "is written and read by process 0 only; allowed: a restart in one process")
     if given and len(given) < 3:
         missing = [k for k in opts if k not in given]
         raise InputError(f"invalid {' '.join(f'{k} {opts[k]}' for k in given)} without {', '.join(missing)}; "

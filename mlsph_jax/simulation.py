@@ -338,9 +338,10 @@ class Simulation:
         else:
             geom = self._geom(carry.particles)
         carry = self._relayout(carry)
-        # several processes: a gather is a collective, so every process takes part in the ones whose
-        # result process 0 writes (the snapshots, the checkpoints); the others skip the writing
-        multi = jax.process_count() > 1
+        # several processes with an output folder (the same out_dir on every process): a gather is a
+        # collective, so every process takes part in the ones whose result process 0 writes (the
+        # snapshots, the checkpoints); the others skip the writing
+        multi = jax.process_count() > 1 and out_dir is not None
         if (writer or multi) and not restart:   # degrees at t = 0: the Eulerian geometry's (moving: -1, no step yet)
             deg0 = carry.degree if geom is None else self._host(geom.degree)
             if writer:

@@ -194,6 +194,15 @@ def test_skin_friction_sign_angle_and_separation_point():
     up_deg, low_deg = separation_angles(phi, upper, cf2)
     assert abs(up_deg - 50.0) < 0.2 and abs(low_deg - 40.0) < 0.2     # linear between points 9 deg apart
     assert separation_angles(phi, upper, -np.abs(cf2)) == (0.0, 0.0)  # no attached friction at all
+    # the stream turned by alpha (an elliptic body's incidence turns the stream): angles and
+    # surfaces follow the stream direction, not the x axis
+    a = 0.4
+    e_d = np.array([math.cos(a), math.sin(a)])
+    phi, upper, cf = body_cf(walls, xb, -xb / R, np.zeros(n, int), -np.broadcast_to(tau * e_d, (n, 2)),
+                             (0.0, 0.0), e_d, q)
+    np.testing.assert_allclose(cf, tau * np.abs(np.sin(th - a)) / q, atol=1e-14)
+    np.testing.assert_allclose(phi, np.abs(np.angle(np.exp(1j * (th - a)))), atol=1e-14)
+    np.testing.assert_array_equal(upper, np.sin(th - a) > 0)
 
 
 ELLIPSE = ('case.body="ellipse"', "case.aspect=2.0", "case.alpha=5.0")

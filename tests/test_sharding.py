@@ -279,14 +279,28 @@ def test_mlsph_run_distributed_on_two_processes_gives_the_one_process_numbers(tm
             assert b[group][k] == pytest.approx(v, rel=1e-12, abs=1e-13), (group, k)
 
 
-def test_mlsph_run_distributed_options_are_checked_first():
+def test_mlsph_run_distributed_options_are_checked_first(monkeypatch, capsys, tmp_path):
     """The launch options come together and are checked before JAX is initialised (exit 2, naming
-    the option, the value and what is allowed)."""
+    the option, the value and what is allowed; jax.distributed.initialize is never reached)."""
+    import jax
+
     from mlsph_jax.cli import main
 
-    assert main(["run", "--coordinator", "127.0.0.1:1234"]) == 2
-    assert main(["run", "--coordinator", "nohost", "--num-processes", "2", "--process-id", "0"]) == 2
-    assert main(["run", "--coordinator", "h:1", "--num-processes", "2", "--process-id", "2"]) == 2
+    def never(**kwargs):
+        raise AssertionError(f"jax.distributed.initialize({kwargs}) reached")
+
+    monkeypatch.setattr(jax.distributed, "initialize", never)
+    for opts, words in [(["--coordinator", "127.0.0.1:1234"], ["--coordinator 127.0.0.1:1234 without "
+                                                                "--num-processes, --process-id", "allowed: all three"]),
+                        (["--coordinator", "nohost", "--num-processes", "2", "--process-id", "0"],
+                         ["invalid --coordinator 'nohost'", "HOST:PORT"]),
+                        (["--coordinator", "h:1", "--num-processes", "2", "--process-id", "2"],
+                         ["invalid --process-id 2", "allowed: 0..1"]),
+                        (["--distributed", "--restart", str(tmp_path)], ["invalid --restart", "one process"])]:
+        assert main(["run", *opts]) == 2, opts
+        err = capsys.readouterr().err
+        for w in words:
+            assert w in err, (w, err)
 
 
 # --------------------------------------------------------------------------------------------
