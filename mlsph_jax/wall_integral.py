@@ -20,8 +20,13 @@ and
   (the wall moves with its own normal velocity u_w.n_b); p* = p_b + rho_b vn (vn + |vn| + c_b)
   the pressure of the Rusanov flux between the wall state (rho, u, p, c)_b = sum_j N_j(x_b)
   (rho, u, p, c)_j and its mirror image, vn = (u_b - u_w) . n_b (SPEC §5.8's Riemann
-  alternative; it damps wall-normal acoustic modes); tau_b the viscous stress at the wall
-  (adiabatic: no heat flux);
+  alternative; it damps wall-normal acoustic modes); tau_b the viscous stress at the wall;
+  adiabatic walls (the default) pass no heat; an *isothermal* wall (``wall_energy`` of
+  :meth:`BoundaryIntegral.setup`: the specific internal energy e_w of the wall, Params key
+  ``geometry.<name>.wall_e``, differentiable) adds the conductive flux -kappa grad(e)_b . n_b to
+  the energy row, grad(e)_b from the fixed-centre MLS fit at x_b constrained to e(x_b) = e_w (the
+  velocity's constrained fit applied to e; needs ``scheme.heat_conduction`` and an EOS with an
+  energy equation);
 * no-slip walls: tau_b from the velocity gradient of a fixed-centre MLS fit at x_b of degree
   ``scheme.fit_degree`` *constrained* to pass through the wall velocity, u(x_b) = u_w (the
   constant coefficient is u_w; the others are the weighted least-squares fit of u_j - u_w),
@@ -256,11 +261,31 @@ class BoundaryIntegralWalls:
     n_rows: int = dataclasses.field(metadata=dict(static=True), default=0)
     #: ``(stencils, rows, rows_overflow)`` of particles that do not move (:meth:`fix`), or None
     fixed: tuple | None = None
+    #: isothermal curves: ``((name, e_w), ...)`` at construction (the values are the defaults of the
+    #: Params keys ``geometry.<name>.wall_e``); the other curves are adiabatic
+    wall_energy: tuple = dataclasses.field(metadata=dict(static=True), default=())
 
     # -- the geometry ------------------------------------------------------------------------
     def default_params(self) -> dict:
-        """``geometry.*`` parameters of the curves at their construction values."""
-        return curve_params(self.curves)
+        """``geometry.*`` parameters of the curves at their construction values (with the wall
+        energies ``geometry.<name>.wall_e`` of isothermal curves)."""
+        return {**curve_params(self.curves),
+                **{f"geometry.{name}.wall_e": jnp.asarray(e, jnp.float64) for name, e in self.wall_energy}}
+
+    def heat_flux(self, p: Particles, params, scheme, st, prim, bp):
+        """``kappa grad(e)_b . n_b [Nb]`` at the isothermal wall points (0 at adiabatic ones):
+        grad(e)_b of the fit at x_b constrained to the wall energy (module docstring)."""
+        if not self.wall_energy:
+            return jnp.zeros(bp.x.shape[0], bp.x.dtype)
+        full = {**self.default_params(), **dict(params)}
+        names = dict(self.wall_energy)
+        e_c = jnp.stack([jnp.asarray(full[f"geometry.{c.name}.wall_e"], bp.x.dtype) if c.name in names
+                         else jnp.zeros((), bp.x.dtype) for c in self.curves])
+        iso = jnp.asarray([c.name in names for c in self.curves])[bp.curve]
+        ew = e_c[bp.curve]
+        G = constrained_gradient(st, prim.e[:, None], ew[:, None], get_kernel(self.kernel), scheme.fit_degree,
+                                 scheme.wall_fit_rcond)                                 # [Nb, 1, d]
+        return jnp.where(iso, params["physics.kappa"] * jnp.einsum("bd,bd->b", G[:, 0, :], bp.normal), 0.0)
 
     def points(self, params):
         """The :class:`~mlsph_jax.geometry.BoundaryPoints` for ``params`` (construction values
@@ -378,7 +403,8 @@ class BoundaryIntegralWalls:
 
     # -- the wall fluxes ---------------------------------------------------------------------
     def wall_state(self, p: Particles, params, scheme, prim):
-        """``(points, stencils, N_j(x_b)[Nb, K], p_b[Nb], tau_b n_b [Nb, d])`` for a state."""
+        """``(points, stencils, N_j(x_b)[Nb, K], p_b[Nb], tau_b n_b [Nb, d], q_b[Nb])`` for a state,
+        q_b = kappa grad(e)_b . n_b the conductive flux of isothermal walls (:meth:`heat_flux`)."""
         bp = self.points(params)
         st = self.point_stencils(p, bp.x)
         kern = get_kernel(self.kernel)
@@ -397,19 +423,19 @@ class BoundaryIntegralWalls:
             noslip = jnp.asarray(self.no_slip)[bp.curve]
             d = bp.x.shape[1]
             tn = jnp.where(noslip[:, None], jnp.einsum("bad,bd->ba", D[:, 1:1 + d, :], bp.normal), 0.0)
-        return bp, st, vals, pb, tn
+        return bp, st, vals, pb, tn, self.heat_flux(p, params, scheme, st, prim, bp)
 
     def wall_terms(self, p: Particles, params, geom, scheme, U, prim, w):
         """``(B[N, nv], dV[N])``: the boundary term B_i of eq. 4.24 (to subtract from d(VU)/dt)
         and the boundary part of dV_i/dt (module docstring)."""
         eos = get_eos(scheme.eos)
         n, d = p.x.shape
-        bp, st, vals, pb, tn = self.wall_state(p, params, scheme, prim)
+        bp, st, vals, pb, tn, qb = self.wall_state(p, params, scheme, prim)
         weight = bp.dgamma[:, None] * vals                                        # dGamma_b N_j(x_b)
         un = jnp.sum(bp.velocity * bp.normal, axis=-1)
         Fb = [jnp.zeros_like(pb)[:, None], pb[:, None] * bp.normal - tn]
         if eos.has_energy:
-            Fb.append((pb * un - jnp.sum(tn * bp.velocity, axis=-1))[:, None])
+            Fb.append((pb * un - jnp.sum(tn * bp.velocity, axis=-1) - qb)[:, None])
         Fb = jnp.concatenate(Fb, axis=-1)                                          # F_b . n_b [Nb, nv]
         flat = st.idx.reshape(-1)
         wflat = jnp.where(st.mask, weight, 0.0).reshape(-1)
@@ -469,7 +495,7 @@ class BoundaryIntegralWalls:
         from .eos import to_primitive
 
         prim = to_primitive(p.q / p.vol[:, None], get_eos(scheme.eos), params)
-        bp, _, _, pb, tn = self.wall_state(p, params, scheme, prim)
+        bp, _, _, pb, tn, _ = self.wall_state(p, params, scheme, prim)
         nc = len(self.curves)
         fp = jax.ops.segment_sum(pb[:, None] * bp.normal * bp.dgamma[:, None], bp.curve, nc)
         fv = jax.ops.segment_sum(-tn * bp.dgamma[:, None], bp.curve, nc)
@@ -545,13 +571,15 @@ class BoundaryIntegral:
 
     @staticmethod
     def setup(p_fluid: Particles, walls, band, params, eos, *, scheme, domain, curves=(), no_slip=None,
-              headroom: float = 1.5, max_spacing_ratio: float = 1.0):
+              headroom: float = 1.5, max_spacing_ratio: float = 1.0, wall_energy=None):
         """``(particles, BoundaryIntegralWalls)``: no particle is added.  ``walls``: axis-aligned
         :class:`~mlsph_jax.boundaries.Wall` planes (segments ``wall<k>`` spanning the domain, one
         point per particle spacing, velocity ``boundary.wall_velocity[k]`` of the Params if present,
         no-slip unless ``Wall.slip``); ``curves``: further curves, no-slip where ``no_slip[k]``
         (default: all); ``band``: depth beyond a wall segment within which a particle counts as
-        having crossed it; ``headroom``: stencil capacity over the largest set-up count."""
+        having crossed it; ``headroom``: stencil capacity over the largest set-up count;
+        ``wall_energy``: ``{curve name: e_w}`` of isothermal walls (the axis-aligned walls are
+        ``wall<k>``; module docstring), the others adiabatic."""
         if scheme.method != "mlsph_ale":
             raise InputError(f"invalid scheme.method={scheme.method!r} with boundary-integral walls; allowed: "
                              "\"mlsph_ale\" (the boundary term of thesis eq. 4.24 is derived for MLS shape functions)")
@@ -563,6 +591,7 @@ class BoundaryIntegral:
                                                      else no_slip)
         if len(ns_flags) != len(curves):
             raise InputError(f"invalid no_slip={no_slip!r}; allowed: one flag per curve ({len(curves) - len(pairs)})")
+        wall_energy = _check_wall_energy(wall_energy, curves, scheme)
         full = Params({**curve_params(curves), **dict(params)})
         check_geometry(curves, full, p_fluid.x, p_fluid.vol, p_fluid.kind, domain=domain,
                        max_spacing_ratio=max_spacing_ratio)
@@ -609,8 +638,33 @@ class BoundaryIntegral:
             curves=curves, no_slip=tuple(bool(s) for s in ns_flags),
             fluid_inside=tuple(ins for _, ins in closed), capacity=int(math.ceil(count.max() * headroom)),
             beta=float(scheme.beta), kernel=scheme.kernel, band=float(band), box=box, n_walls=len(pairs),
-            grid=grid, near_grid=near_grid, near_capacity=near_capacity, n_rows=n_rows)
+            grid=grid, near_grid=near_grid, near_capacity=near_capacity, n_rows=n_rows, wall_energy=wall_energy)
         return p_fluid, obj
+
+
+def _check_wall_energy(wall_energy, curves, scheme) -> tuple:
+    """``((name, e_w), ...)`` of the isothermal walls, checked: known curve names, finite e_w > 0,
+    and a scheme that conducts heat in an EOS with an energy equation."""
+    if not wall_energy:
+        return ()
+    names = [c.name for c in curves]
+    out = []
+    for name, e in dict(wall_energy).items():
+        if name not in names:
+            raise InputError(f"invalid wall_energy curve {name!r}; allowed: one of {', '.join(map(repr, names))}")
+        try:
+            ok = math.isfinite(float(e)) and float(e) > 0.0
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            raise InputError(f"invalid wall_energy[{name!r}]={e!r}; allowed: a finite specific internal energy > 0")
+        out.append((name, float(e)))
+    if not (scheme.heat_conduction and get_eos(scheme.eos).has_energy):
+        raise InputError(f"invalid wall_energy={dict(wall_energy)!r} with scheme.heat_conduction="
+                         f"{scheme.heat_conduction} and eos {scheme.eos!r}: an isothermal wall conducts heat; "
+                         "allowed: scheme.heat_conduction = true and an EOS with an energy equation (ideal_gas, "
+                         "stiffened_gas)")
+    return tuple(out)
 
 
 BOUNDARIES.register("boundary_integral", BoundaryIntegral())

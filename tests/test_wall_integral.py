@@ -14,7 +14,7 @@ import pytest
 
 from mlsph_jax import neighbors as nb
 from mlsph_jax.boundaries import BOUNDARIES, Wall
-from mlsph_jax.eos import get_eos, to_conservative
+from mlsph_jax.eos import get_eos, to_conservative, to_primitive
 from mlsph_jax.errors import InputError
 from mlsph_jax.geometry import Circle, Ellipse, Polygon
 from mlsph_jax.integrate import step_status
@@ -146,6 +146,66 @@ def test_free_slip_wall_keeps_a_tangential_uniform_flow():
     _, _, dq2 = _rhs(p2, bw2, dom, sch_v, TAIT)
     wall_rows = np.asarray(p2.x[:, 1]) < 0.1
     assert np.all(np.asarray(dq2[wall_rows, 1]) < -1e-3)
+
+
+def test_isothermal_walls_keep_the_exact_steady_conduction_profile():
+    """Isothermal boundary-integral walls (issue 17 item 2, "fixed temperature"): an ideal gas at
+    rest between plates held at e = 2 (y = 0) and e = 3 (y = 1), uniform pressure, e linear in y
+    (rho = p / ((gamma - 1) e)) is an exact steady state of heat conduction: the energy
+    rate of every particle, the wall rows included, is zero to round-off (the constrained wall fit
+    of e is exact for a linear profile and the wall rows are linearly consistent, decision 60; rho e
+    is uniform, so the Rusanov dissipation adds nothing to it), and the heat the upper wall gives
+    equals the heat the lower one takes, kappa (e1 - e0) per unit length.  (The mass rate is not
+    zero: rho ~ 1/e is not polynomial, so its reconstructed states jump and the Rusanov flux
+    diffuses them, ~2e-5 here, the same with adiabatic walls.)  With the walls adiabatic that heat
+    piles up in the rows next to the cold wall instead.  Bad input: an unknown curve, a
+    non-positive energy, a scheme without heat conduction."""
+    ny, nx, e0, e1, kappa = 10, 8, 2.0, 3.0, 0.05
+    params = GAS.updated({"physics.kappa": jnp.asarray(kappa)})
+    sch = Scheme(eos="ideal_gas", viscous=True, heat_conduction=True)
+    dx = 1.0 / ny
+    x = _lattice(nx, ny, dx)
+    e = e0 + (e1 - e0) * x[:, 1]
+    p_const = 1.0
+    rho = p_const / (0.4 * e)
+    eos = get_eos("ideal_gas")
+    U = to_conservative(jnp.asarray(rho), jnp.zeros((len(x), 2)), jnp.full(len(x), p_const), eos, params)
+    pf = make_particles(x, np.full(len(x), dx * dx), U)
+    domain = Domain((0.0, -dx), (nx * dx, 1.0 + dx), (True, False))
+    walls = [Wall(1, 0.0, 1), Wall(1, 1.0, -1)]
+    band = sch.support * sch.beta * dx
+
+    def setup(energy, scheme=sch):
+        return BOUNDARIES.get("boundary_integral").setup(pf, walls, band, params, "ideal_gas", scheme=scheme,
+                                                          domain=domain, wall_energy=energy)
+
+    p, bw = setup({"wall0": e0, "wall1": e1})
+    _, _, dq = _rhs(p, bw, domain, sch, params)
+    flux = kappa * (e1 - e0) / dx          # the conducted heat per particle row's face, the rates' scale
+    assert float(jnp.max(jnp.abs(dq[:, 3]))) < 1e-11 * flux * dx
+    assert float(jnp.max(jnp.abs(dq[:, 1:3]))) < 1e-13
+    prim = to_primitive(p.q / p.vol[:, None], eos, params)
+    bp, st, _, _, _, qb = bw.wall_state(p, params, sch, prim)
+    per_wall = np.asarray(jax.ops.segment_sum(qb * bp.dgamma, bp.curve, 2))
+    np.testing.assert_allclose(per_wall, [-kappa * (e1 - e0) * nx * dx, kappa * (e1 - e0) * nx * dx], rtol=1e-12)
+    pa, bwa = setup(None)
+    _, _, dqa = _rhs(pa, bwa, domain, sch, params)
+    # adiabatic: the heat conducted through the interior, kappa (e1 - e0) per unit length, piles up in
+    # the rows next to the cold wall and leaves those next to the hot one (the first-moment rows
+    # spread it over three rows)
+    low, high = np.asarray(x[:, 1]) < 0.3, np.asarray(x[:, 1]) > 0.7
+    heat = kappa * (e1 - e0) * nx * dx
+    assert float(jnp.sum(dqa[low, 3])) == pytest.approx(heat, rel=1e-12)
+    assert float(jnp.sum(dqa[high, 3])) == pytest.approx(-heat, rel=1e-12)
+    np.testing.assert_allclose(np.asarray(dqa[:, :3]), np.asarray(dq[:, :3]), rtol=0, atol=1e-15)
+    for energy, words in [({"wall7": 2.0}, ["wall_energy curve 'wall7'", "'wall0'"]),
+                          ({"wall0": -1.0}, ["wall_energy['wall0']=-1.0", "> 0"]),
+                          ({"wall0": float("nan")}, ["wall_energy['wall0']=nan"])]:
+        with pytest.raises(InputError) as ei:
+            setup(energy)
+        assert all(w in str(ei.value) for w in words), str(ei.value)
+    with pytest.raises(InputError, match=r"scheme\.heat_conduction=False.*allowed: scheme\.heat_conduction = true"):
+        setup({"wall0": e0}, Scheme(eos="ideal_gas", viscous=True))
 
 
 def test_exact_steady_poiseuille_has_no_residual_in_the_wall_rows():

@@ -485,7 +485,7 @@ def build(cfg: Mapping) -> Problem:
         time-series sample, decision 70): the coefficients, the wall pressure and the viscous
         traction tau_b n_b."""
         prim = to_primitive(p.U, eos, P)
-        bp, _, _, pb, tn = walls.wall_state(p, P, scheme, prim)
+        bp, _, _, pb, tn, _ = walls.wall_state(p, P, scheme, prim)
         return coefficients(p, 0.0, P), bp.x, bp.normal, bp.curve, pb, tn
 
     def diagnostics(p: Particles, t: float, P) -> dict[str, float]:
@@ -586,7 +586,7 @@ def wall_cp(p: Particles, P, walls, scheme, p_inf: float, q_inf: float):
     """``(theta[Nb], cp[Nb])`` at the body's quadrature points, C_p from the wall pressure p_b of
     the boundary integral (:meth:`~mlsph_jax.wall_integral.BoundaryIntegralWalls.wall_state`)."""
     prim = to_primitive(p.U, get_eos(scheme.eos), P)
-    bp, _, _, pb, _ = walls.wall_state(p, P, scheme, prim)
+    bp, _, _, pb, _, _ = walls.wall_state(p, P, scheme, prim)
     return body_cp(walls, bp.x, bp.curve, pb, p_inf, q_inf)
 
 
