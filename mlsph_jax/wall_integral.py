@@ -26,7 +26,8 @@ and
   ``geometry.<name>.wall_e``, differentiable) adds the conductive flux -kappa grad(e)_b . n_b to
   the energy row, grad(e)_b from the fixed-centre MLS fit at x_b constrained to e(x_b) = e_w (the
   velocity's constrained fit applied to e; needs ``scheme.heat_conduction`` and an EOS with an
-  energy equation);
+  energy equation; to differentiate with respect to e_w, put ``walls.default_params()``'s
+  ``wall_e`` keys into the problem's Params, as the cases do with their curves' parameters);
 * no-slip walls: tau_b from the velocity gradient of a fixed-centre MLS fit at x_b of degree
   ``scheme.fit_degree`` *constrained* to pass through the wall velocity, u(x_b) = u_w (the
   constant coefficient is u_w; the others are the weighted least-squares fit of u_j - u_w),
@@ -64,6 +65,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 
 import jax
 import jax.numpy as jnp
@@ -647,13 +649,16 @@ def _check_wall_energy(wall_energy, curves, scheme) -> tuple:
     and a scheme that conducts heat in an EOS with an energy equation."""
     if not wall_energy:
         return ()
+    if not isinstance(wall_energy, Mapping):
+        raise InputError(f"invalid wall_energy={wall_energy!r}; allowed: a mapping {{curve name: e_w}}")
     names = [c.name for c in curves]
     out = []
-    for name, e in dict(wall_energy).items():
+    for name, e in wall_energy.items():
         if name not in names:
-            raise InputError(f"invalid wall_energy curve {name!r}; allowed: one of {', '.join(map(repr, names))}")
+            raise InputError(f"invalid wall_energy curve {name!r} (= {e!r}); allowed: one of "
+                             f"{', '.join(map(repr, names))}")
         try:
-            ok = math.isfinite(float(e)) and float(e) > 0.0
+            ok = not isinstance(e, bool) and math.isfinite(float(e)) and float(e) > 0.0
         except (TypeError, ValueError):
             ok = False
         if not ok:

@@ -181,7 +181,7 @@ def test_isothermal_walls_keep_the_exact_steady_conduction_profile():
 
     p, bw = setup({"wall0": e0, "wall1": e1})
     _, _, dq = _rhs(p, bw, domain, sch, params)
-    flux = kappa * (e1 - e0) / dx          # the conducted heat per particle row's face, the rates' scale
+    flux = kappa * (e1 - e0) / dx          # the conducted heat flux density; flux * dx per particle face
     assert float(jnp.max(jnp.abs(dq[:, 3]))) < 1e-11 * flux * dx
     assert float(jnp.max(jnp.abs(dq[:, 1:3]))) < 1e-13
     prim = to_primitive(p.q / p.vol[:, None], eos, params)
@@ -198,7 +198,8 @@ def test_isothermal_walls_keep_the_exact_steady_conduction_profile():
     assert float(jnp.sum(dqa[low, 3])) == pytest.approx(heat, rel=1e-12)
     assert float(jnp.sum(dqa[high, 3])) == pytest.approx(-heat, rel=1e-12)
     np.testing.assert_allclose(np.asarray(dqa[:, :3]), np.asarray(dq[:, :3]), rtol=0, atol=1e-15)
-    for energy, words in [({"wall7": 2.0}, ["wall_energy curve 'wall7'", "'wall0'"]),
+    for energy, words in [({"wall7": 2.0}, ["wall_energy curve 'wall7' (= 2.0)", "'wall0'"]),
+                          (2.0, ["wall_energy=2.0", "mapping"]), ({"wall0": True}, ["wall_energy['wall0']=True"]),
                           ({"wall0": -1.0}, ["wall_energy['wall0']=-1.0", "> 0"]),
                           ({"wall0": float("nan")}, ["wall_energy['wall0']=nan"])]:
         with pytest.raises(InputError) as ei:
