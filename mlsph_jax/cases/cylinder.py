@@ -513,9 +513,9 @@ def build(cfg: Mapping) -> Problem:
         return out
 
     def plot(out: Path, p: Particles, t: float, P) -> None:
-        plot_cp(Path(out) / "cp.png", *wall_cp(p, P, walls, scheme, p_inf, q_inf), title=_title(cfg, p.n, t))
+        _, xb, normal, curve, pb, tn = wall_diagnostics(p, P)     # one wall evaluation for both plots
+        plot_cp(Path(out) / "cp.png", *body_cp(walls, xb, curve, pb, p_inf, q_inf), title=_title(cfg, p.n, t))
         if scheme.viscous:
-            _, xb, normal, curve, _, tn = wall_diagnostics(p, P)
             plot_cf(Path(out) / "cf.png", *body_cf(walls, xb, normal, curve, tn, P[body.key("centre")],
                                                    stream_velocity(P), q_inf), title=_title(cfg, p.n, t))
         plot_field(Path(out) / "velocity_field.png", p, P, scheme, R, title=_title(cfg, p.n, t),
@@ -581,14 +581,6 @@ def _title(cfg, n: int, t: float | None = None) -> str:
 
 
 # --- post-processing ----------------------------------------------------------------------------
-
-def wall_cp(p: Particles, P, walls, scheme, p_inf: float, q_inf: float):
-    """``(theta[Nb], cp[Nb])`` at the body's quadrature points, C_p from the wall pressure p_b of
-    the boundary integral (:meth:`~mlsph_jax.wall_integral.BoundaryIntegralWalls.wall_state`)."""
-    prim = to_primitive(p.U, get_eos(scheme.eos), P)
-    bp, _, _, pb, _, _ = walls.wall_state(p, P, scheme, prim)
-    return body_cp(walls, bp.x, bp.curve, pb, p_inf, q_inf)
-
 
 def body_cp(walls, xb, curve, pb, p_inf: float, q_inf: float):
     """``(theta[Nb], cp[Nb])`` of the body's quadrature points among the walls' points ``xb``
