@@ -52,7 +52,11 @@ _RUN_MARKERS = ("summary.json", "fields.h5", CHECKPOINT)
 RESTART_MAY_CHANGE = ("time.max_steps", "output.progress", "output.plots", "output.degree_fallback_warn")
 #: Config keys added after checkpoints were first written, with the value that reproduces the runs
 #: made before them: a run's config without the key restarts when the key has that value now.
-RESTART_ADDED_KEYS = {"output.series_interval": 0.0}
+#: Only keys the current config has count (``case.*`` keys belong to one case).
+RESTART_ADDED_KEYS = {"output.series_interval": 0.0,
+                      # cylinder: the graded layout (decision 90) and the isothermal body (decision 102)
+                      "case.wake_spacing": 0.1, "case.wake_length": 6.0, "case.wake_grading": 0.16,
+                      "case.prandtl": 0.0, "case.wall_temperature": 0.0}
 
 _CARRY_SCALARS = ("t", "step", "dt_last")
 _PARTICLE_FIELDS = ("x", "vol", "q", "kind", "ppd")
@@ -183,10 +187,11 @@ def _flatten(d: Mapping | None, prefix: str = "") -> dict:
 def compare_settings(saved: Mapping, current: Mapping, *, where: str, may_change=(),
                      added: Mapping | None = None) -> list[str]:
     """``"key: saved -> current"`` for every (dotted) key whose value differs, except ``may_change``;
-    a key of ``added`` absent from ``saved`` is taken as its value there (a key added later)."""
+    a key of ``added`` that ``current`` has and ``saved`` lacks is taken as its value there (a key
+    added later)."""
     a, b = _flatten(json.loads(json.dumps(saved, default=_json_default))), \
         _flatten(json.loads(json.dumps(current, default=_json_default)))
-    a = {**(added or {}), **a}
+    a = {**{k: v for k, v in (added or {}).items() if k in b}, **a}
     diffs = []
     for k in sorted(set(a) | set(b)):
         if k in may_change:

@@ -503,6 +503,17 @@ class BoundaryIntegralWalls:
         fv = jax.ops.segment_sum(-tn * bp.dgamma[:, None], bp.curve, nc)
         return fp + fv, fp
 
+    def heat_rates(self, p: Particles, params, scheme):
+        """Heat passed from each curve into the fluid per unit span ``[n_curves]`` (jnp,
+        differentiable): sum_b dGamma_b kappa grad(e)_b . n_b of the isothermal walls (0 for the
+        adiabatic ones; :meth:`heat_flux`), and each curve's length ``[n_curves]``."""
+        from .eos import to_primitive
+
+        prim = to_primitive(p.q / p.vol[:, None], get_eos(scheme.eos), params)
+        bp, _, _, _, _, qb = self.wall_state(p, params, scheme, prim)
+        nc = len(self.curves)
+        return jax.ops.segment_sum(qb * bp.dgamma, bp.curve, nc), jax.ops.segment_sum(bp.dgamma, bp.curve, nc)
+
     def coefficients(self, p: Particles, params, scheme, *, rho_inf, u_inf, length, curve: str):
         """Force coefficients of ``curve`` (jnp, differentiable; SPEC §5.8): ``cd``, ``cl`` (the
         force along and across the free stream ``u_inf[d]``, over 1/2 rho_inf |u_inf|^2

@@ -123,6 +123,8 @@ def test_force_on_body_at_rest_is_the_buoyancy():
     (("case.r_far=0.4",), ["case.r_far=0.4", "outer radius > case.radius=0.5"]),
     (("eos.kind=\"tait\"", "eos.rho0=1.0", "eos.c0=10.0"), ["eos.kind", "ideal_gas"]),
     (("physics.mu=0.5",), ["physics.mu=0.5", "case.re"]),
+    (("case.wall_temperature=1.1",), ["case.wall_temperature=1.1", "without heat conduction", "case.prandtl > 0"]),
+    (("case.prandtl=0.72", "physics.kappa=0.01"), ["physics.kappa=0.01", "case.prandtl=0.72", "0.04861111111"]),
 ])
 def test_bad_cylinder_configs_name_the_key(overrides, words):
     """A body overlapping the far-field rings, a body too big for the layout, too few points
@@ -134,6 +136,93 @@ def test_bad_cylinder_configs_name_the_key(overrides, words):
         config_mod.load(CONFIG_DIR / "cylinder.toml", list(overrides))
     for w in words:
         assert w in str(e.value), (w, str(e.value))
+
+
+# --- the isothermal body -----------------------------------------------------------------------
+
+def _conduction_problem(n_theta: int, r_o: float = 3.0):
+    """The ``cylinder`` problem with an isothermal body (Pr 0.72, T_w / T_inf = 1.2) and a far
+    field at r_o."""
+    return _problem(f"case.n_theta={n_theta}", f"case.r_far={r_o}", "case.prandtl=0.72", "case.wall_temperature=1.2")
+
+
+def _conduction_state(cfg, pb, ratio: float, r_o: float = 3.0):
+    """``(particles, params, e_w - e_inf)``: the exact steady conduction state of a gas at rest
+    between the body at T_w = ``ratio`` T_inf and the circle r_o at T_inf: uniform pressure, e =
+    e_inf + (e_w - e_inf) ln(r_o / r) / ln(r_o / R); the params hold that wall energy."""
+    from mlsph_jax.cases.cylinder import free_stream_energy
+    from mlsph_jax.eos import get_eos, to_conservative
+
+    p, R = pb.particles, cfg["case"]["radius"]
+    e_inf = free_stream_energy(cfg)
+    x = np.asarray(p.x)
+    e = e_inf + (ratio - 1.0) * e_inf * np.log(r_o / np.hypot(x[:, 0], x[:, 1])) / math.log(r_o / R)
+    pr = free_stream(cfg, x, pb.params)[2]
+    rho = pr / ((cfg["eos"]["gamma"] - 1.0) * e)
+    U = to_conservative(jnp.asarray(rho), jnp.zeros_like(p.x), jnp.asarray(pr), get_eos(pb.scheme.eos), pb.params)
+    P = pb.params.updated({"geometry.body.wall_e": jnp.asarray(ratio * e_inf)})
+    return p.replace(q=p.vol[:, None] * U), P, (ratio - 1.0) * e_inf
+
+
+def test_isothermal_body_passes_the_exact_conduction_heat_and_reports_its_nusselt_number():
+    """Issue 17 item 2 (fixed temperature) from the config: `case.prandtl` sets kappa = gamma mu /
+    Pr, `case.wall_temperature` makes the body isothermal.  On the exact steady conduction state
+    between the body and r_o = 3 D = 6 R (gas at rest) the heat passed into the fluid is 2 pi kappa
+    (e_w - e_inf) / ln(r_o / R) per unit span and Nu = 2 / ln(r_o / R) = 1.1162 on every point.
+    Measured relative errors of the wall heat (the constrained fit of e at each wall point): 7.8e-3
+    at 32 points on the body, 2.7e-3 at 48 (order 2.6), 6.6e-4 at 80, 2.5e-4 at 128; the same for
+    a cooled body (T_w < T_inf: the heat flows into the body, Nu stays positive); the local Nu at
+    the front equals the mean (the state is axisymmetric).  d Nu / d e_w (jvp) matches central FD."""
+    import jax
+
+    from mlsph_jax.cases.cylinder import free_stream_energy
+    from mlsph_jax.eos import get_eos, to_primitive
+
+    errors, problems = [], {}
+    for n_theta in (32, 48):
+        cfg, pb = problems[n_theta] = _conduction_problem(n_theta)
+        kappa = float(pb.params["physics.kappa"])
+        assert kappa == pytest.approx(1.4 * (1.0 / 40.0) / 0.72, rel=1e-14)
+        # e_inf is the free stream's own energy, and the wall energy the configured multiple of it
+        e0 = np.asarray(to_primitive(pb.particles.U, get_eos(pb.scheme.eos), pb.params).e)
+        np.testing.assert_allclose(e0, free_stream_energy(cfg), rtol=1e-14)
+        assert float(pb.params["geometry.body.wall_e"]) == pytest.approx(1.2 * e0[0], rel=1e-14)
+        for ratio in (1.2, 0.8):
+            p, P, de = _conduction_state(cfg, pb, ratio)
+            q, length = pb.boundary.heat_rates(p, P, pb.scheme)
+            assert float(length[0]) == pytest.approx(math.pi, rel=1e-14)
+            exact = 2.0 * math.pi * kappa * de / math.log(6.0)
+            errors.append(float(q[0]) / exact - 1.0)
+            m = pb.metrics(p, 0.0, P)
+            assert m["nusselt"] == pytest.approx(2.0 / math.log(6.0) * (1.0 + errors[-1]), rel=1e-12)
+            assert m["nusselt_front"] == pytest.approx(m["nusselt"], rel=1e-10)
+    hot32, cold32, hot48, cold48 = errors
+    assert abs(hot32) < 0.01 and abs(hot48) < 0.0035 and hot32 / hot48 > 2.2, errors
+    assert cold32 == pytest.approx(hot32, rel=1e-8) and cold48 == pytest.approx(hot48, rel=1e-8)
+    # d Nu / d e_w on a fixed state (the wall value enters the constrained fit and the scale)
+    cfg, pb = problems[32]
+    p, P, _ = _conduction_state(cfg, pb, 1.2)
+    key = "geometry.body.wall_e"
+
+    def nu(ew):
+        return pb.differentiable_metrics(p, 0.0, P.updated({key: ew}))["nusselt"]
+    ew = P[key]
+    _, ad = jax.jvp(nu, (ew,), (jnp.ones_like(ew),))
+    h = 1e-6 * float(ew)
+    fd = (float(nu(ew + h)) - float(nu(ew - h))) / (2.0 * h)
+    assert abs(float(ad) - fd) <= 1e-6 * abs(fd) and abs(fd) * float(ew) > 1e-2, (float(ad), fd)
+    # the scheme passes that heat into the fluid: on the initial (uniform) state the hot body's
+    # Q > 0 (the constrained fit sees e_w - e_inf; an unconstrained one would see a uniform e and
+    # give 0), and the fluid's total energy rate exceeds the adiabatic body's by exactly Q
+    # (sum_i N_i(x_b) = 1); the adiabatic body with conduction passes nothing and has no Nusselt number
+    pb_a = pb
+    q_hot, _ = pb_a.boundary.heat_rates(pb_a.particles, pb_a.params, pb_a.scheme)
+    _, pb_b = _problem("case.prandtl=0.72")
+    q_adi, _ = pb_b.boundary.heat_rates(pb_b.particles, pb_b.params, pb_b.scheme)
+    assert float(q_hot[0]) > 0.0 and float(q_adi[0]) == 0.0
+    assert "nusselt" not in pb_b.metrics(pb_b.particles, 0.0, pb_b.params)
+    energy = [float(jnp.sum(rhs_once(pb_, pb_.particles, pb_.boundary)[2][:, 3])) for pb_ in (pb_a, pb_b)]
+    assert energy[0] - energy[1] == pytest.approx(float(q_hot[0]), rel=1e-9), (energy, float(q_hot[0]))
 
 
 # --- Re = 40 runs ----------------------------------------------------------------------------

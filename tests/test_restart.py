@@ -237,6 +237,26 @@ def test_a_checkpoint_from_before_series_interval_restarts(sim, full, tmp_path):
     assert_same_state(res.particles, full.particles)
 
 
+def test_cylinder_configs_from_before_the_heat_and_graded_keys_still_match():
+    """A cylinder run saved before ``case.prandtl`` / ``case.wall_temperature`` (decision 102) and the
+    graded layout's ``case.wake_*`` keys (decision 90) existed matches today's config at their
+    defaults (so it restarts), a changed value is named, and the cylinder's added keys do not leak
+    into other cases' comparisons."""
+    from mlsph_jax.checkpoint import RESTART_ADDED_KEYS, compare_settings
+
+    cyl = config.load(ROOT / "configs/cylinder.toml", [])
+    old = json.loads(json.dumps(cyl, default=str))
+    for k in ("prandtl", "wall_temperature", "wake_spacing", "wake_length", "wake_grading"):
+        del old["case"][k]
+    assert compare_settings(old, cyl, where="", added=RESTART_ADDED_KEYS) == []
+    hot = config.load(ROOT / "configs/cylinder.toml", ["case.prandtl=0.72", "case.wall_temperature=1.1"])
+    assert compare_settings(old, hot, where="", added=RESTART_ADDED_KEYS) == [
+        "case.prandtl: 0.0 in the run, 0.72 now", "case.wall_temperature: 0.0 in the run, 1.1 now"]
+    assert compare_settings(old, cyl, where="", added={}) != []          # the table is what makes it match
+    sod_cfg = config.load(ROOT / "configs/sod_ideal_gas.toml", [])
+    assert compare_settings(sod_cfg, sod_cfg, where="", added=RESTART_ADDED_KEYS) == []
+
+
 # --------------------------------------------------------------------------------------------
 # slow: MOOD, ale_shift and a real SIGINT to the command line
 # --------------------------------------------------------------------------------------------

@@ -21,7 +21,9 @@ the wake axis between the body and ``wake_length`` D, where it is ``wake_spacing
 grading keeps the neighbour rows near the polar layout's).  The body's quadrature keeps
 ``n_theta`` points on every layout.
 
-Body.  No-slip adiabatic wall by the boundary integral of thesis eq. 4.24
+Body.  No-slip wall by the boundary integral of thesis eq. 4.24, adiabatic (thesis) or isothermal
+(``wall_temperature`` T_w / T_inf > 0: wall energy e_w = (T_w / T_inf) e_inf, Params key
+``geometry.body.wall_e``; decision 102)
 (:mod:`mlsph_jax.wall_integral`, ``boundary_integral``; SPEC §5.8): a
 :class:`~mlsph_jax.geometry.Circle` named ``body`` with ``n_theta`` quadrature points, no ghosts.
 The body's centre and radius are the parameters ``geometry.body.centre`` / ``geometry.body.radius``
@@ -56,8 +58,12 @@ pressure outlet); measured against each other in docs/validation.md ("Far-field 
 
 Fluid.  Ideal gas (SPEC V9 [REC]: gamma = 1.4), rho_inf = U_inf = 1, free-stream Mach number
 ``mach`` (c_inf = U_inf / M, p_inf = rho_inf c_inf^2 / gamma), mu = rho_inf U_inf D / ``re``
-(physics.mu is derived as in the cavity), no heat conduction (physics.kappa = 0: at M = 0.1 the
-temperature varies by O(M^2); the wall is adiabatic either way).  Eulerian frame (thesis).  The
+(physics.mu is derived as in the cavity), by default no heat conduction (physics.kappa = 0: at M =
+0.1 the temperature varies by O(M^2); the thesis' wall is adiabatic).  ``prandtl`` Pr > 0 derives
+physics.kappa = gamma mu / Pr (held fixed when physics.mu is differentiated, so a derivative with
+respect to mu is one at fixed kappa, not at fixed Pr); an isothermal body needs conduction.  The
+steady stop (``steady_tol``) tests the velocity only: with a heated body check that ``nusselt`` in
+``timeseries.csv`` has settled too.  Eulerian frame (thesis).  The
 run starts impulsively: every particle at the free stream.  With a body force
 ``physics.body_force`` = f the initial and far-field states are the isothermal hydrostatic
 atmosphere p = p_inf exp(rho_inf f.x / p_inf), rho = rho_inf p / p_inf (grad p = rho f).
@@ -119,6 +125,13 @@ body's quadrature points (:meth:`~mlsph_jax.wall_integral.BoundaryIntegralWalls.
   (:func:`separation_angles`).  C_f = tau_w / (1/2 rho_inf U_inf^2) with tau_w the viscous
   traction on the body along the surface tangent pointing from the front towards the base
   (positive in attached flow; :func:`body_cf`; plotted in ``cf.png``);
+* ``nusselt`` (an isothermal body, ``case.wall_temperature`` > 0 and not 1): the mean Nusselt
+  number Nu = Q D / (P kappa (e_w - e_inf)) = h D / k, Q = sum_b dGamma_b kappa grad(e)_b . n_b the
+  heat passed from the body into the fluid per unit span (the isothermal wall's conductive flux,
+  decision 101), P the body's perimeter, e = c_v T (so kappa grad e = k grad T); positive when heat
+  flows from the hotter to the colder side (a cooled body too); ``nusselt_front`` the local Nu at
+  the front stagnation point (interpolated like C_p; plotted against theta in ``nu.png``).  Heat
+  conduction: ``case.prandtl`` Pr sets physics.kappa = gamma mu / Pr (k = mu c_p / Pr over c_v);
 * ``recirculation_length`` (metrics only): L_w / D, the distance from the base to where u_x on
   the wake axis y = 0 turns positive again behind the first ring that flows back; u_x on the
   axis is the mean of the two particle rays at theta = +-dtheta/2, linear in r between rings
@@ -126,7 +139,7 @@ body's quadrature points (:meth:`~mlsph_jax.wall_integral.BoundaryIntegralWalls.
   no-slip is imposed weakly through the boundary term).
 
 Plots: ``cp.png`` (C_p(theta) with thesis Table 4.1's points), ``cf.png`` (C_f(theta) and the
-separation points) and ``velocity_field.png``.
+separation points), ``nu.png`` (local Nu(theta) of an isothermal body) and ``velocity_field.png``.
 """
 
 from __future__ import annotations
@@ -227,6 +240,7 @@ def check_cylinder(cfg: dict) -> None:
         problems.append(f"invalid physics.mu={show(phys['mu'])}: case cylinder derives the viscosity from "
                         f"case.re={show(c['re'])} (mu = rho_inf U_inf 2 case.radius / case.re = {mu:.10g}); "
                         f"allowed: 0 (derived) or {mu:.10g} — set case.re instead")
+    problems += _heat_problems(cfg)
     try:
         edges, _ = polar_ring_edges(c["radius"], c["n_theta"], c["r_far"], names=_NAMES)
     except InputError as e:
@@ -272,6 +286,23 @@ def check_cylinder(cfg: dict) -> None:
                             "allowed: rho_inf |f| 2 r_far / p_inf <= 50")
     if problems:
         raise ConfigError(join_problems(problems))
+
+
+def _heat_problems(cfg: Mapping) -> list[str]:
+    """Heat conduction and the isothermal body: physics.kappa must be 0 (derived) or gamma mu / Pr
+    when `prandtl` is set, and a `wall_temperature` needs conduction (nothing silently ignored)."""
+    c, phys, problems = cfg["case"], cfg["physics"], []
+    kappa = cylinder_conductivity(cfg)
+    if c["prandtl"] > 0.0 and phys["kappa"] != 0.0 and abs(phys["kappa"] - kappa) > 1e-9 * kappa:
+        problems.append(f"invalid physics.kappa={show(phys['kappa'])}: case cylinder derives the conduction "
+                        f"coefficient from case.prandtl={show(c['prandtl'])} (kappa = gamma mu / Pr = {kappa:.10g}); "
+                        f"allowed: 0 (derived) or {kappa:.10g} — or case.prandtl = 0 to set physics.kappa directly")
+    if c["wall_temperature"] > 0.0 and kappa == 0.0:
+        problems.append(f"invalid case.wall_temperature={show(c['wall_temperature'])} without heat conduction "
+                        f"(case.prandtl={show(c['prandtl'])}, physics.kappa={show(phys['kappa'])}): an isothermal "
+                        "body passes heat by conduction only; allowed: case.wall_temperature = 0 (adiabatic), or "
+                        "case.prandtl > 0 (e.g. 0.72) or physics.kappa > 0")
+    return problems
 
 
 def layout_problems(cfg: Mapping) -> list[str]:
@@ -361,13 +392,31 @@ CYLINDER_KEYS: dict[str, Key] = {
                          "particle and the free stream each stage (non-reflecting for outgoing acoustic waves, "
                          "but at low Mach the pressure level floats with the wake); \"inflow_outflow\" is a "
                          "velocity inlet and pressure outlet (docs/validation.md, far-field options)"),
+    "prandtl": Key(float, 0.0, minimum=0.0,
+                   doc="Prandtl number mu c_p / k of the gas: sets physics.kappa = gamma mu / Pr (heat conduction, "
+                       "thesis eq. 4.40; SPEC V9 recommends 0.72); 0: physics.kappa as given (default 0, no "
+                       "conduction; the thesis' adiabatic body)"),
+    "wall_temperature": Key(float, 0.0, minimum=0.0,
+                            doc="T_w / T_inf of an isothermal body (wall energy e_w = ratio e_inf, parameter "
+                                "geometry.body.wall_e; decisions 101, 102), reporting the Nusselt number (not at 1: "
+                                "no temperature difference; near 1 it carries the O(M^2) recovery temperature, "
+                                "docs/validation.md); 0: adiabatic (the default, thesis); needs heat conduction "
+                                "(case.prandtl or physics.kappa > 0)"),
     "steady_tol": steady_tol_key(1e-3),
 }
 
 
+def cylinder_conductivity(cfg: Mapping) -> float:
+    """physics.kappa of a resolved ``cylinder`` config: gamma mu / ``case.prandtl`` (kappa = k / c_v,
+    k = mu c_p / Pr) when the Prandtl number is set, else physics.kappa as given."""
+    pr = cfg["case"]["prandtl"]
+    return cfg["eos"]["gamma"] * cylinder_viscosity(cfg) / pr if pr > 0.0 else cfg["physics"]["kappa"]
+
+
 def run_config(cfg: Mapping) -> dict:
-    """The resolved config with ``physics.mu`` set to rho_inf U_inf D / Re (what the run uses)."""
-    return {**cfg, "physics": {**cfg["physics"], "mu": cylinder_viscosity(cfg)}}
+    """The resolved config with ``physics.mu`` set to rho_inf U_inf D / Re and ``physics.kappa``
+    to gamma mu / Pr when ``case.prandtl`` is set (what the run uses)."""
+    return {**cfg, "physics": {**cfg["physics"], "mu": cylinder_viscosity(cfg), "kappa": cylinder_conductivity(cfg)}}
 
 
 def free_stream(cfg: Mapping, x: np.ndarray, params: Params, xp=np):
@@ -406,6 +455,13 @@ def initial_state(cfg: Mapping, x, params: Params, xp=np):
     if cfg["case"]["perturbation"] > 0.0:
         vel = vel + trigger_velocity(cfg, x, xp)
     return rho, vel, p
+
+
+def free_stream_energy(cfg: Mapping) -> float:
+    """The free stream's specific internal energy e_inf = p_inf / ((gamma - 1) rho_inf) (uniform,
+    also in the isothermal atmosphere of a body force)."""
+    gamma = cfg["eos"]["gamma"]
+    return (U_INF / cfg["case"]["mach"]) ** 2 / (gamma * (gamma - 1.0))
 
 
 def stream_velocity(params: Params, xp=np):
@@ -452,8 +508,14 @@ def build(cfg: Mapping) -> Problem:
     half = (lay.bound if polar_circle else float(np.max(np.abs(x)))) * 1.01
     domain = Domain((-half, -half), (half, half), (False, False))
     band = R * 2.0 * math.pi / n_theta
-    particles, walls = BOUNDARIES.get("boundary_integral").setup(pf, [], band, params, scheme.eos, scheme=scheme,
-                                                                 domain=domain, curves=(body,))
+    e_inf = free_stream_energy(cfg)
+    ratio = c["wall_temperature"]
+    particles, walls = BOUNDARIES.get("boundary_integral").setup(
+        pf, [], band, params, scheme.eos, scheme=scheme, domain=domain, curves=(body,),
+        wall_energy={BODY: ratio * e_inf} if ratio > 0.0 else None)
+    # an isothermal body's wall energy is a parameter (differentiable, `--wrt geometry.body.wall_e`)
+    params = params.updated({k: v for k, v in walls.default_params().items() if k.endswith(".wall_e")})
+    heated = ratio > 0.0 and ratio != 1.0      # a temperature difference: the Nusselt number is defined
     _check_far_field_apart(walls, particles)
     far = FAR_FIELDS.get(c["far_field"], "case.far_field").setup(
         particles, scheme.eos, lambda xf, P: free_stream(cfg, xf, P, xp=jnp))
@@ -477,7 +539,13 @@ def build(cfg: Mapping) -> Problem:
         """C_D, C_L and their parts (jnp, differentiable)."""
         co = walls.coefficients(p, P, scheme, rho_inf=RHO_INF, u_inf=stream_velocity(P, jnp),
                                 length=2.0 * P[body.key("radius")], curve=BODY)
-        return {**co, "cd_viscous": co["cd"] - co["cd_pressure"], "cl_viscous": co["cl"] - co["cl_pressure"]}
+        co = {**co, "cd_viscous": co["cd"] - co["cd_pressure"], "cl_viscous": co["cl"] - co["cl_pressure"]}
+        if heated:    # Nu = Q D / (perimeter kappa (e_w - e_inf)), module docstring
+            q, length = walls.heat_rates(p, P, scheme)
+            k = [cv.name for cv in walls.curves].index(BODY)
+            scale = length[k] * P["physics.kappa"] * (P[f"geometry.{BODY}.wall_e"] - e_inf)
+            co["nusselt"] = q[k] * 2.0 * P[body.key("radius")] / scale
+        return co
 
     @jax.jit
     def wall_diagnostics(p: Particles, P):
@@ -485,15 +553,19 @@ def build(cfg: Mapping) -> Problem:
         time-series sample, decision 70): the coefficients, the wall pressure and the viscous
         traction tau_b n_b."""
         prim = to_primitive(p.U, eos, P)
-        bp, _, _, pb, tn, _ = walls.wall_state(p, P, scheme, prim)
-        return coefficients(p, 0.0, P), bp.x, bp.normal, bp.curve, pb, tn
+        bp, _, _, pb, tn, qb = walls.wall_state(p, P, scheme, prim)
+        nu = (qb * 2.0 * P[body.key("radius")] / (P["physics.kappa"] * (P[f"geometry.{BODY}.wall_e"] - e_inf))
+              if heated else qb)
+        return coefficients(p, 0.0, P), bp.x, bp.normal, bp.curve, pb, tn, nu
 
     def diagnostics(p: Particles, t: float, P) -> dict[str, float]:
-        co, xb, normal, curve, pb, tn = wall_diagnostics(p, P)
+        co, xb, normal, curve, pb, tn, nu = wall_diagnostics(p, P)
         out = {k: float(v) for k, v in co.items()}
         theta, cp = body_cp(walls, xb, curve, pb, p_inf, q_inf)
         out["cp_front"] = float(periodic_interpolate(theta, cp, math.pi))
         out["cp_base"] = float(periodic_interpolate(theta, cp, 0.0))
+        if heated:
+            out["nusselt_front"] = float(periodic_interpolate(*body_values(walls, xb, curve, nu), math.pi))
         if scheme.viscous:
             phi, upper, cf = body_cf(walls, xb, normal, curve, tn, P[body.key("centre")], stream_velocity(P), q_inf)
             out["separation_angle"], out["separation_angle_lower"] = separation_angles(phi, upper, cf)
@@ -513,8 +585,10 @@ def build(cfg: Mapping) -> Problem:
         return out
 
     def plot(out: Path, p: Particles, t: float, P) -> None:
-        _, xb, normal, curve, pb, tn = wall_diagnostics(p, P)     # one wall evaluation for both plots
+        _, xb, normal, curve, pb, tn, nu = wall_diagnostics(p, P)     # one wall evaluation for every plot
         plot_cp(Path(out) / "cp.png", *body_cp(walls, xb, curve, pb, p_inf, q_inf), title=_title(cfg, p.n, t))
+        if heated:
+            plot_nu(Path(out) / "nu.png", *body_values(walls, xb, curve, nu), title=_title(cfg, p.n, t))
         if scheme.viscous:
             plot_cf(Path(out) / "cf.png", *body_cf(walls, xb, normal, curve, tn, P[body.key("centre")],
                                                    stream_velocity(P), q_inf), title=_title(cfg, p.n, t))
@@ -576,19 +650,26 @@ def _title(cfg, n: int, t: float | None = None) -> str:
         when += f", ellipse A={c['aspect']:g}, alpha={c['alpha']:g} deg"
     if c["layout"] != "polar":
         when += f", {c['layout']} layout"
+    if c["wall_temperature"] > 0.0:
+        when += f", isothermal T_w/T_inf={c['wall_temperature']:g}"
     return (f"cylinder (Re={c['re']:g}, M={c['mach']:g}, {c['n_theta']} on the body, {n} particles{when}): "
             f"{s['method']}, reconstruction degree {s['reconstruction_degree']}")
 
 
 # --- post-processing ----------------------------------------------------------------------------
 
-def body_cp(walls, xb, curve, pb, p_inf: float, q_inf: float):
-    """``(theta[Nb], cp[Nb])`` of the body's quadrature points among the walls' points ``xb``
-    (their curve indices ``curve``) with wall pressures ``pb``."""
+def body_values(walls, xb, curve, v):
+    """``(theta[Nb], v[Nb])``: the values ``v`` at the body's quadrature points among the walls'
+    points ``xb`` (their curve indices ``curve``), theta their angle about the origin."""
     on = np.asarray(curve) == [cv.name for cv in walls.curves].index(BODY)
     x = np.asarray(xb)[on]
-    theta = np.mod(np.arctan2(x[:, 1], x[:, 0]), 2.0 * math.pi)
-    return theta, (np.asarray(pb)[on] - p_inf) / q_inf
+    return np.mod(np.arctan2(x[:, 1], x[:, 0]), 2.0 * math.pi), np.asarray(v)[on]
+
+
+def body_cp(walls, xb, curve, pb, p_inf: float, q_inf: float):
+    """``(theta[Nb], cp[Nb])`` of the body's quadrature points with wall pressures ``pb``."""
+    theta, p = body_values(walls, xb, curve, pb)
+    return theta, (p - p_inf) / q_inf
 
 
 def body_cf(walls, xb, normal, curve, tn, centre, u_inf, q_inf: float):
@@ -736,6 +817,14 @@ def plot_cf(path: Path, phi, upper, cf, title: str = "") -> None:
             ax.axvline(a, color="0.5", lw=0.8)
     ax.axhline(0.0, color="k", lw=0.6)
     _save_angle_plot(fig, ax, path, "angle from the base [deg] (0 = base, 180 = front)", "C_f", title, legend=7)
+
+
+def plot_nu(path: Path, theta, nu, title: str = "") -> None:
+    """Local Nusselt number q_b D / (k (T_w - T_inf)) of an isothermal body against theta."""
+    fig, ax = subplots(figsize=(6.0, 4.2))
+    order = np.argsort(theta)
+    ax.plot(np.degrees(theta[order]), nu[order], "o-", ms=3, label="MLSPH-ALE (isothermal wall)")
+    _save_angle_plot(fig, ax, path, "theta [deg] (0 = base, 180 = front)", "local Nu", title, legend=7)
 
 
 def plot_field(path: Path, p: Particles, P, scheme, radius: float, title: str = "", grid: int = 161,
