@@ -5,7 +5,9 @@ For the final state of ``mlsph run configs/cylinder.toml --out OUT`` (its ``chec
 C_p of the nearest first-ring particle, of the MLS interpolation of the particles' pressure at the
 wall (linear and quadratic, the case's own wall stencils) and of the wall pressure p* of the
 scheme (``BoundaryIntegralWalls.wall_state``: the linear wall state plus the acoustic term of the
-mirror Riemann problem, decisions 54 and 71).  docs/validation.md "The front stagnation pressure".
+mirror Riemann problem, decisions 54 and 71), with the linear wall state's wall-normal velocity
+vn_b (into the wall) and the acoustic term rho_b vn_b (vn_b + |vn_b| + c_b) of p* in C_p units.
+docs/validation.md "The front stagnation pressure".
 
     python experiments/cylinder_wall_pressure.py OUT [OUT ...]
 """
@@ -50,6 +52,9 @@ def wall_pressure_parts(out: str | Path) -> dict:
         vals, _, _, _ = mls.operators_block(st.dx, st.mask, st.h, kernel=get_kernel(walls.kernel), degree=deg,
                                             rcond=sc.rcond, derivative="fixed_centre", with_coeffs=False)
         interp[deg] = np.asarray(jnp.einsum("bk,bk->b", vals, prim.p[st.idx]))
+        if deg == 1:   # the scheme's linear wall state: the wall-normal velocity into the wall
+            vel_b = np.asarray(jnp.einsum("bk,bkd->bd", vals, prim.vel[st.idx]))
+            vn = np.sum((vel_b - np.asarray(bp.velocity)) * np.asarray(bp.normal), axis=1)
     pstar = np.asarray(walls.wall_state(p, P, sc, prim)[3])
     x = np.asarray(p.x)
     fluid = np.asarray(p.kind) == 0
@@ -58,7 +63,8 @@ def wall_pressure_parts(out: str | Path) -> dict:
         b = int(np.argmin(np.abs(np.angle(np.exp(1j * (theta - th0))))))
         near = np.where(fluid)[0][np.argmin(np.sum((x[fluid] - xb[b]) ** 2, axis=1))]
         out_[name] = {"theta_deg": math.degrees(theta[b]), "first_ring_particle": cp(prim.p[near]),
-                      "linear_wall": cp(interp[1][b]), "quadratic_wall": cp(interp[2][b]), "scheme_wall": cp(pstar[b])}
+                      "linear_wall": cp(interp[1][b]), "quadratic_wall": cp(interp[2][b]), "scheme_wall": cp(pstar[b]),
+                      "wall_normal_velocity": float(vn[b]), "acoustic_term": (float(pstar[b]) - interp[1][b]) / q_inf}
     return out_
 
 
@@ -72,7 +78,8 @@ def main():
         for name, v in parts.items():
             print(f"{out} {name:5s} theta {v['theta_deg']:7.2f}  particle {v['first_ring_particle']:.4f}  "
                   f"linear {v['linear_wall']:.4f}  quadratic {v['quadratic_wall']:.4f}  "
-                  f"scheme p* {v['scheme_wall']:.4f}")
+                  f"scheme p* {v['scheme_wall']:.4f}  (vn_b {v['wall_normal_velocity']:+.2e}: "
+                  f"acoustic term {v['acoustic_term']:+.4f})")
     dest = ROOT / "experiments" / "output" / "cylinder_wall_pressure.json"
     dest.parent.mkdir(parents=True, exist_ok=True)
     dest.write_text(json.dumps(res, indent=2))
