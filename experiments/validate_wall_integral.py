@@ -2,7 +2,8 @@
 
 Runs the built-in ``couette`` and ``poiseuille`` configs with ``case.walls`` = ``mirror_ghosts``
 and ``boundary_integral`` at the same resolution (``--ny`` particles across the gap, ``nx`` = 8
-along the periodic plates, which does not change the 1-D solution), Eulerian MLSPH-ALE degree 2,
+along the periodic plates, which does not change the 1-D solution), Eulerian MLSPH-ALE with the
+configs' reconstruction (cubic since 2026-12-05; quadratic before),
 and prints the L-infinity error against the exact series (``linf_u_error``, normalised by the
 peak speed), the largest wall-normal speed, the mass change and the wall time; writes
 ``experiments/output/validate_wall_integral.json``.  The load average is printed with every

@@ -462,13 +462,16 @@ def test_poiseuille_start_up_beats_the_mirror_ghosts():
     mg = _channel_run("configs/poiseuille.toml", "mirror_ghosts", "case.ny=10", "time.t_end=1.0")["metrics"]
     assert bi["linf_u_error"] <= 2.0 * mg["linf_u_error"]
     assert bi["linf_u_error"] <= 0.7 * mg["linf_u_error"] and bi["max_abs_v"] < 1e-12
+    assert bi["linf_u_error"] < 8e-3      # the cubic scheme's accuracy (the quadratic 0.0307 fails it)
 
 
-SHIFT_MASS = pytest.mark.xfail(strict=True, reason=(
+#: Why the shifted frame's mass is not conserved to round-off on boundary-integral walls.
+SHIFT_MASS = (
     "known defect (docs/architecture.md decisions 54, 78): once the particles are disordered, the drift along "
     "the walls varies across the wall rows, and the first-moment correction of those rows (not a pair "
-    "difference) acts on the gradient of rho (u - w): measured mass change 4.7e-6 at t = 1 (L-inf 0.0081); "
-    "6.0e-4 while the drift still pointed into the walls (before decision 78), 3.7e-3 before decision 60"))
+    "difference) acts on the gradient of rho (u - w): measured mass change 9.7e-6 at t = 1 with the cubic "
+    "reconstruction (4.7e-6 quadratic; 6.0e-4 while the drift still pointed into the walls, before decision 78, "
+    "3.7e-3 before decision 60)")
 
 
 def test_shifting_drift_has_no_component_into_the_walls():
@@ -508,14 +511,20 @@ def test_shifting_drift_has_no_component_into_the_walls():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("frame", ["lagrangian", pytest.param("ale_shift", marks=SHIFT_MASS)])
+@pytest.mark.parametrize("frame", ["lagrangian", "ale_shift"])
 def test_couette_on_moving_particles(frame):
     """The same walls on moving particles (no ghosts to keep in step): measured, ny = 10, t = 1,
-    Lagrangian, cubic reconstruction: L-inf 1.70e-3 (the Eulerian 1.67e-3), mass change 7e-15,
-    max |v| 8.1e-5 (quadratic: 0.0081; 0.0166 before decision 60; mirror ghosts 0.0512)."""
+    cubic reconstruction: L-inf 1.70e-3 in both frames (the Eulerian 1.67e-3), max |v| 8.1e-5,
+    mass change 7e-15 (Lagrangian) and 9.7e-6 (``ale_shift``: a known defect, reported as an
+    expected failure after the accuracy is asserted); quadratic: L-inf 0.0081, 0.0166 before
+    decision 60, mirror ghosts 0.0512."""
     s = _channel_run("configs/couette.toml", "boundary_integral", "case.ny=10", "time.t_end=1.0",
                      f"scheme.frame={frame}")
-    assert s["status"] == "ok" and s["metrics"]["linf_u_error"] < 2.5e-3 and abs(s["conservation"]["mass"]) < 1e-12
+    assert s["status"] == "ok" and s["metrics"]["linf_u_error"] < 2.5e-3, s["metrics"]
+    mass = abs(s["conservation"]["mass"])
+    if frame == "ale_shift" and mass >= 1e-12:
+        pytest.xfail(f"{SHIFT_MASS} (this run: {mass:.2g})")
+    assert mass < 1e-12
 
 
 def test_a_wall_velocity_across_the_wall_is_refused_before_a_run():
