@@ -10,10 +10,10 @@ which removes the recovery temperature: at Mach M the adiabatic wall is ~ r (gam
 above T_inf (r ~ Pr^(1/2)), so each single run's heat is h (T_w - T_aw), not h (T_w - T_inf).  The
 same two runs give the heat-flux-weighted recovery temperature T_aw / T_inf = 1 + d (Nu_cold -
 Nu_hot) / (Nu_cold + Nu_hot).  Local Nu(theta) of the difference -> a figure; every number, the
-runs' wall and compile times and particle-steps per second -> JSON.  Reference: the correlations of Churchill &
-Bernstein (1977, J. Heat Transfer 99:300) and Hilpert (1933; constants as tabulated by Incropera
-& DeWitt), fits of experiments with a scatter of ~20 %, printed beside the result (no traceable
-two-dimensional simulation value is in ``../shared/reference``).
+runs' wall and compile times and particle-steps per second -> JSON.  Reference: the correlations of
+Churchill & Bernstein and of Hilpert (:mod:`mlsph_jax.reference.cylinder`), fits of experiments
+with a scatter of ~20 %, printed beside the result (no traceable two-dimensional simulation value
+is in ``../shared/reference``).
 
     python experiments/cylinder_heat_transfer.py [--re 40] [--n-theta 48] [--delta 0.01] [--prandtl 0.72]
         [--set KEY=VALUE ...] [--keep DIR] [--from HOT_DIR COLD_DIR]
@@ -39,21 +39,10 @@ from mlsph_jax.cases.cylinder import body_values, free_stream_energy
 from mlsph_jax.checkpoint import read_checkpoint
 from mlsph_jax.eos import get_eos, to_primitive
 from mlsph_jax.plotting import subplots
+from mlsph_jax.reference.cylinder import nusselt_churchill_bernstein, nusselt_hilpert
 from mlsph_jax.simulation import run_problem
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def churchill_bernstein(re: float, pr: float) -> float:
-    """Nu = 0.3 + 0.62 Re^1/2 Pr^1/3 / [1 + (0.4/Pr)^2/3]^1/4 [1 + (Re/282000)^5/8]^4/5."""
-    return (0.3 + 0.62 * re ** 0.5 * pr ** (1 / 3) / (1 + (0.4 / pr) ** (2 / 3)) ** 0.25
-            * (1 + (re / 282000.0) ** 0.625) ** 0.8)
-
-
-def hilpert(re: float, pr: float) -> float:
-    """Nu = C Re^m Pr^1/3 with (C, m) = (0.911, 0.385) for 4 <= Re < 40, (0.683, 0.466) for 40 <= Re < 4000."""
-    c, m = (0.911, 0.385) if re < 40.0 else (0.683, 0.466)
-    return c * re ** m * pr ** (1 / 3)
 
 
 def wall_heat(out: Path) -> dict:
@@ -118,7 +107,7 @@ def main() -> None:
            "nusselt_hot": nu_h, "nusselt_cold": nu_c, "nusselt": nu, "recovery_temperature_ratio": 1.0 + s,
            "nusselt_front": float(np.interp(math.pi, hot["theta"][order], local[order])),
            "nusselt_base": float(local[np.argmin(np.abs(np.angle(np.exp(1j * hot["theta"]))))]),
-           "churchill_bernstein": churchill_bernstein(re, pr), "hilpert": hilpert(re, pr),
+           "churchill_bernstein": nusselt_churchill_bernstein(re, pr), "hilpert": nusselt_hilpert(re, pr),
            "cd": [hot["summary"]["metrics"]["cd"], cold["summary"]["metrics"]["cd"]],
            "steps": [hot["summary"]["n_steps"], cold["summary"]["n_steps"]],
            "t_final": [hot["summary"]["t_final"], cold["summary"]["t_final"]],
