@@ -79,19 +79,40 @@ def main() -> None:
     ap.add_argument("--figure", type=Path, default=ROOT / "docs/figures/cylinder_heat_transfer_nu.png")
     a = ap.parse_args()
 
-    if a.dirs:
-        dirs = dict(zip(("hot", "cold"), a.dirs, strict=True))
-    else:
-        base = a.keep or Path(tempfile.mkdtemp(prefix="mlsph_heat_"))
-        dirs = {"hot": base / "hot", "cold": base / "cold"}
-        for name, sign in (("hot", 1.0), ("cold", -1.0)):
-            run([f"case.re={a.re}", f"case.n_theta={a.n_theta}", f"case.prandtl={a.prandtl}",
-                               f"case.wall_temperature={1.0 + sign * a.delta}", *a.set], dirs[name])
+    if not a.dirs and not 0.0 < a.delta < 1.0:
+        ap.error(f"invalid --delta {a.delta!r}: the runs need T_w / T_inf = 1 +- delta > 0 and != 1; "
+                 "allowed: 0 < delta < 1")
+    base = None
+    try:
+        if a.dirs:
+            dirs = dict(zip(("hot", "cold"), a.dirs, strict=True))
+        else:
+            base = a.keep or Path(tempfile.mkdtemp(prefix="mlsph_heat_"))
+            dirs = {"hot": base / "hot", "cold": base / "cold"}
+            for name, sign in (("hot", 1.0), ("cold", -1.0)):
+                run([f"case.re={a.re}", f"case.n_theta={a.n_theta}", f"case.prandtl={a.prandtl}",
+                     f"case.wall_temperature={1.0 + sign * a.delta}", *a.set], dirs[name])
+        report(dirs, a.json, a.figure)
+    finally:
+        if base is not None and not a.keep:
+            shutil.rmtree(base, ignore_errors=True)
+
+
+def report(dirs: dict, json_path: Path, figure: Path) -> None:
+    """Nu of each run and of the pair, the recovery temperature, the local Nu figure and the JSON."""
     hot, cold = wall_heat(dirs["hot"]), wall_heat(dirs["cold"])
-    for r in (hot, cold):
+    for name, r in (("hot", hot), ("cold", cold)):
         if r["ratio"] in (0.0, 1.0):
-            raise SystemExit(f"{r['summary'].get('config', '')}: not a heated or cooled body (case.wall_temperature "
-                             f"= {r['ratio']}); allowed: two runs with T_w != T_inf")
+            raise SystemExit(f"invalid {name} run {str(dirs[name])!r}: not a heated or cooled body "
+                             f"(case.wall_temperature = {r['ratio']}); allowed: runs with T_w / T_inf > 0 and != 1")
+    if not hot["ratio"] > 1.0 > cold["ratio"]:
+        raise SystemExit(f"invalid runs: T_w / T_inf = {hot['ratio']} (hot) and {cold['ratio']} (cold); allowed: the "
+                         "hot run above 1 and the cold run below")
+    unsteady = [name for name, r in (("hot", hot), ("cold", cold))
+                if not r["summary"].get("steady_state", {}).get("converged", False)]
+    if unsteady:
+        print(f"warning: the {' and '.join(unsteady)} run did not reach the steady stop (case.steady_tol): its Nu is "
+              "that of the final state, not of a steady flow")
     d_e = (hot["ratio"] - cold["ratio"]) * hot["e_inf"]
     order = np.argsort(hot["theta"])
     local = (hot["q"] - cold["q"]) * hot["D"] / (hot["kappa"] * d_e)
@@ -107,18 +128,20 @@ def main() -> None:
            "nusselt_hot": nu_h, "nusselt_cold": nu_c, "nusselt": nu, "recovery_temperature_ratio": 1.0 + s,
            "nusselt_front": float(np.interp(math.pi, hot["theta"][order], local[order])),
            "nusselt_base": float(local[np.argmin(np.abs(np.angle(np.exp(1j * hot["theta"]))))]),
-           "churchill_bernstein": nusselt_churchill_bernstein(re, pr), "hilpert": nusselt_hilpert(re, pr),
+           "churchill_bernstein": nusselt_churchill_bernstein(re, pr),
+           "hilpert": nusselt_hilpert(re, pr) if 4.0 <= re < 4000.0 else None,
            "cd": [hot["summary"]["metrics"]["cd"], cold["summary"]["metrics"]["cd"]],
            "steps": [hot["summary"]["n_steps"], cold["summary"]["n_steps"]],
            "t_final": [hot["summary"]["t_final"], cold["summary"]["t_final"]],
            "n_particles": hot["summary"]["n_particles"],
            **{k: [r["summary"][k] for r in (hot, cold)]
               for k in ("wall_time_s", "compile_time_s", "particle_updates_per_s")},
+           "steady": [r["summary"].get("steady_state", {}).get("converged", False) for r in (hot, cold)],
            "runs": [str(dirs["hot"]), str(dirs["cold"])]}
     for k, v in res.items():
         print(f"{k:28s} {v}")
-    a.json.parent.mkdir(parents=True, exist_ok=True)
-    a.json.write_text(json.dumps(res, indent=1))
+    json_path.parent.mkdir(parents=True, exist_ok=True)
+    json_path.write_text(json.dumps(res, indent=1))
     fig, ax = subplots(figsize=(6.0, 4.2))
     for r, name in ((hot, "hot"), (cold, "cold")):
         alone = r["q"] * r["D"] / (r["kappa"] * (r["ratio"] - 1.0) * r["e_inf"])
@@ -132,11 +155,9 @@ def main() -> None:
     ax.set_title(f"isothermal cylinder, Re = {re:g}, Pr = {pr:g}, M = {c['mach']:g}, {c['n_theta']} on the body "
                  f"(Churchill-Bernstein {res['churchill_bernstein']:.2f})", fontsize=8)
     fig.tight_layout()
-    a.figure.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(a.figure, dpi=120)
-    print(f"wrote {a.json} and {a.figure}")
-    if not a.dirs and not a.keep:
-        shutil.rmtree(base)
+    figure.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(figure, dpi=120)
+    print(f"wrote {json_path} and {figure}")
 
 
 if __name__ == "__main__":

@@ -52,10 +52,13 @@ def wall_pressure_parts(out: str | Path) -> dict:
         vals, _, _, _ = mls.operators_block(st.dx, st.mask, st.h, kernel=get_kernel(walls.kernel), degree=deg,
                                             rcond=sc.rcond, derivative="fixed_centre", with_coeffs=False)
         interp[deg] = np.asarray(jnp.einsum("bk,bk->b", vals, prim.p[st.idx]))
-        if deg == 1:   # the scheme's linear wall state: the wall-normal velocity into the wall
-            vel_b = np.asarray(jnp.einsum("bk,bkd->bd", vals, prim.vel[st.idx]))
-            vn = np.sum((vel_b - np.asarray(bp.velocity)) * np.asarray(bp.normal), axis=1)
-    pstar = np.asarray(walls.wall_state(p, P, sc, prim)[3])
+    # the scheme's own wall state (its stencils and linear weights): p*, the interpolated p_b and
+    # the wall-normal velocity into the wall
+    _, st_w, vals_w, pstar, _, _ = walls.wall_state(p, P, sc, prim)
+    pstar = np.asarray(pstar)
+    p_w = np.asarray(jnp.einsum("bk,bk->b", vals_w, prim.p[st_w.idx]))
+    vel_w = np.asarray(jnp.einsum("bk,bkd->bd", vals_w, prim.vel[st_w.idx]))
+    vn = np.sum((vel_w - np.asarray(bp.velocity)) * np.asarray(bp.normal), axis=1)
     x = np.asarray(p.x)
     fluid = np.asarray(p.kind) == 0
     out_ = {}
@@ -64,7 +67,7 @@ def wall_pressure_parts(out: str | Path) -> dict:
         near = np.where(fluid)[0][np.argmin(np.sum((x[fluid] - xb[b]) ** 2, axis=1))]
         out_[name] = {"theta_deg": math.degrees(theta[b]), "first_ring_particle": cp(prim.p[near]),
                       "linear_wall": cp(interp[1][b]), "quadratic_wall": cp(interp[2][b]), "scheme_wall": cp(pstar[b]),
-                      "wall_normal_velocity": float(vn[b]), "acoustic_term": (float(pstar[b]) - interp[1][b]) / q_inf}
+                      "wall_normal_velocity": float(vn[b]), "acoustic_term": (float(pstar[b]) - p_w[b]) / q_inf}
     return out_
 
 

@@ -156,8 +156,9 @@ def convergence(figs: Path, sizes, steady_sizes) -> dict:
         ax.loglog(d, 0.02 * (d / d[0]) ** k, "k" + ls, lw=0.8, label=f"order {k}")
     ax.set_xlabel("dx / L")
     ax.set_ylabel("error / u_max")
-    ax.set_title("Channel flows, Re = 10: error vs particle spacing\n(MLSPH-ALE, quadratic reconstruction, "
-                 "Eulerian, mirror-ghost walls)", fontsize=9)
+    degree = config.load(ROOT / "configs/couette.toml", [])["scheme"]["reconstruction_degree"]
+    ax.set_title("Channel flows, Re = 10: error vs particle spacing\n(MLSPH-ALE, reconstruction degree "
+                 f"{degree} (the configs'), Eulerian, mirror-ghost walls)", fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()

@@ -38,8 +38,8 @@ import numpy as np
 from .errors import InputError
 from .state import Particles
 
-__all__ = ["CHECKPOINT", "RESTART_ADDED_KEYS", "RUN_FILES", "Checkpoint", "compare_settings", "holds_run",
-           "prepare_out_dir", "read_checkpoint", "write_checkpoint"]
+__all__ = ["CHECKPOINT", "RESTART_ADDED_CASE_KEYS", "RESTART_ADDED_KEYS", "RUN_FILES", "Checkpoint", "compare_settings",
+           "holds_run", "prepare_out_dir", "read_checkpoint", "restart_added_keys", "write_checkpoint"]
 
 CHECKPOINT = "checkpoint.h5"
 FORMAT = "mlsph_jax.checkpoint"
@@ -51,12 +51,25 @@ _RUN_MARKERS = ("summary.json", "fields.h5", CHECKPOINT)
 #: Settings a restart may change (they do not change the numbers of the steps).
 RESTART_MAY_CHANGE = ("time.max_steps", "output.progress", "output.plots", "output.degree_fallback_warn")
 #: Config keys added after checkpoints were first written, with the value that reproduces the runs
-#: made before them: a run's config without the key restarts when the key has that value now.
-#: Only keys the current config has count (``case.*`` keys belong to one case).
-RESTART_ADDED_KEYS = {"output.series_interval": 0.0,
-                      # cylinder: the graded layout (decision 90) and the isothermal body (decision 102)
-                      "case.wake_spacing": 0.1, "case.wake_length": 6.0, "case.wake_grading": 0.16,
-                      "case.prandtl": 0.0, "case.wall_temperature": 0.0}
+#: made before them: a run's config without the key restarts when the key has that value now
+#: (:func:`restart_added_keys`; the current config must have the key).
+RESTART_ADDED_KEYS = {"output.series_interval": 0.0}
+#: The same for one case's own keys (``case.*`` keys mean different things in different cases).
+RESTART_ADDED_CASE_KEYS = {
+    # cylinder keys added after its first runs (2026-11-25), at the values of those runs: layouts
+    # (decisions 72, 90), elliptic body (65), shedding trigger and statistics (69), far-field
+    # options (68), isothermal body (102)
+    "cylinder": {"case.layout": "polar", "case.lattice_ratio": 1.0, "case.blend_radius": 2.0,
+                 "case.wake_spacing": 0.1, "case.wake_length": 6.0, "case.wake_grading": 0.16,
+                 "case.body": "circle", "case.aspect": 1.0, "case.alpha": 0.0, "case.perturbation": 0.0,
+                 "case.perturbation_x": 1.5, "case.perturbation_core": 0.5, "case.transient": 50.0,
+                 "case.far_field": "frozen", "case.prandtl": 0.0, "case.wall_temperature": 0.0},
+}
+
+
+def restart_added_keys(case: str) -> dict:
+    """The keys a restart of a ``case`` run takes at these values when its saved config lacks them."""
+    return {**RESTART_ADDED_KEYS, **RESTART_ADDED_CASE_KEYS.get(case, {})}
 
 _CARRY_SCALARS = ("t", "step", "dt_last")
 _PARTICLE_FIELDS = ("x", "vol", "q", "kind", "ppd")
@@ -186,7 +199,8 @@ def _flatten(d: Mapping | None, prefix: str = "") -> dict:
 
 def compare_settings(saved: Mapping, current: Mapping, *, where: str, may_change=(),
                      added: Mapping | None = None) -> list[str]:
-    """``"key: saved -> current"`` for every (dotted) key whose value differs, except ``may_change``;
+    """``"<where>key: <saved> in the run, <current> now"`` for every (dotted) key whose value differs,
+    except ``may_change``;
     a key of ``added`` that ``current`` has and ``saved`` lacks is taken as its value there (a key
     added later)."""
     a, b = _flatten(json.loads(json.dumps(saved, default=_json_default))), \

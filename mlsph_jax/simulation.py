@@ -33,12 +33,12 @@ import numpy as np
 from . import fallback, io
 from . import neighbors as nb
 from .checkpoint import (
-    RESTART_ADDED_KEYS,
     RESTART_MAY_CHANGE,
     Checkpoint,
     compare_settings,
     prepare_out_dir,
     read_checkpoint,
+    restart_added_keys,
     write_checkpoint,
 )
 from .config.tables import (
@@ -537,7 +537,7 @@ class Simulation:
         diffs = compare_settings(ck.settings, settings, where="")
         if config is not None and ck.config is not None:
             diffs += compare_settings(ck.config, config, where="", may_change=RESTART_MAY_CHANGE,
-                                      added=RESTART_ADDED_KEYS)
+                                      added=restart_added_keys(self.problem.case))
         if diffs:
             raise InputError(f"{where}: the run was made with other settings: " + "; ".join(diffs)
                              + f"; allowed: the run's own settings (only {', '.join(RESTART_MAY_CHANGE)} may change)")

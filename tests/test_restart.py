@@ -238,23 +238,31 @@ def test_a_checkpoint_from_before_series_interval_restarts(sim, full, tmp_path):
 
 
 def test_cylinder_configs_from_before_the_heat_and_graded_keys_still_match():
-    """A cylinder run saved before ``case.prandtl`` / ``case.wall_temperature`` (decision 102) and the
-    graded layout's ``case.wake_*`` keys (decision 90) existed matches today's config at their
-    defaults (so it restarts), a changed value is named, and the cylinder's added keys do not leak
-    into other cases' comparisons."""
-    from mlsph_jax.checkpoint import RESTART_ADDED_KEYS, compare_settings
+    """A cylinder run saved before ``case.prandtl`` / ``case.wall_temperature`` (decision 102), the
+    layout, body, trigger and far-field keys existed (the first runs, 2026-11-25) matches today's
+    config at the values of those runs (so it restarts), a changed value is named, and the
+    cylinder's added keys do not leak into other cases' comparisons (``case.layout`` is also a
+    Taylor-Green key)."""
+    from mlsph_jax.checkpoint import compare_settings, restart_added_keys
 
     cyl = config.load(ROOT / "configs/cylinder.toml", [])
     old = json.loads(json.dumps(cyl, default=str))
-    for k in ("prandtl", "wall_temperature", "wake_spacing", "wake_length", "wake_grading"):
-        del old["case"][k]
-    assert compare_settings(old, cyl, where="", added=RESTART_ADDED_KEYS) == []
+    added = restart_added_keys("cylinder")
+    for k in added:
+        if k.startswith("case."):
+            del old["case"][k[5:]]
+    assert compare_settings(old, cyl, where="", added=added) == []
     hot = config.load(ROOT / "configs/cylinder.toml", ["case.prandtl=0.72", "case.wall_temperature=1.1"])
-    assert compare_settings(old, hot, where="", added=RESTART_ADDED_KEYS) == [
+    assert compare_settings(old, hot, where="", added=added) == [
         "case.prandtl: 0.0 in the run, 0.72 now", "case.wall_temperature: 0.0 in the run, 1.1 now"]
     assert compare_settings(old, cyl, where="", added={}) != []          # the table is what makes it match
-    sod_cfg = config.load(ROOT / "configs/sod_ideal_gas.toml", [])
-    assert compare_settings(sod_cfg, sod_cfg, where="", added=RESTART_ADDED_KEYS) == []
+    # a case's added keys apply to that case only: the Taylor-Green config also has case.layout
+    tg = config.load(ROOT / "configs/taylor_green_2d.toml", [])
+    old_tg = json.loads(json.dumps(tg, default=str))
+    del old_tg["case"]["layout"]
+    assert compare_settings(old_tg, tg, where="", added=restart_added_keys("taylor_green_2d")) == [
+        f"case.layout: '<absent>' in the run, {tg['case']['layout']!r} now"]
+    assert "case.layout" in added and restart_added_keys("riemann_1d") == {"output.series_interval": 0.0}
 
 
 # --------------------------------------------------------------------------------------------
