@@ -73,7 +73,9 @@ class Key:
 
     ``type`` is one of ``float, int, str, bool, list, dict`` (or a tuple of them: the first
     that accepts the value wins).  ``item_type`` is the scalar type of the items of a list or
-    the values of a dict (inline table); ``length`` fixes the length of a list.  ``choices``
+    the values of a dict (inline table); ``length`` fixes the length of a list; ``item_length``
+    makes every item of a list itself a list of that many ``item_type`` values (points
+    ``[[x, y], ...]``).  ``choices``
     (a tuple, or a zero-argument callable returning the allowed names, e.g.
     ``names_of("scheme.flux")``, called each time a value is checked or the docs are written),
     ``minimum`` and ``maximum`` (inclusive unless ``exclusive_minimum``/``exclusive_maximum``)
@@ -94,6 +96,7 @@ class Key:
     exclusive_maximum: bool = False
     item_type: type | None = None
     length: int | None = None
+    item_length: int | None = None
     unit: str = ""
     note: str = ""
 
@@ -103,6 +106,8 @@ class Key:
                 raise TypeError(f"Key type {t!r} is not one of {sorted(_TYPE_NAMES.values())}")
         if self.item_type is not None and self.item_type not in _SCALARS:
             raise TypeError(f"Key item_type {self.item_type!r} is not a scalar type")
+        if self.item_length is not None and (self.types != (list,) or self.item_type is None or self.item_length < 1):
+            raise TypeError("Key item_length needs type list, an item_type and a length >= 1")
         if self.choices is not None and not callable(self.choices):
             object.__setattr__(self, "choices", tuple(self.choices))
         if self.default is not REQUIRED:  # a schema with a bad default is a bug
@@ -133,7 +138,10 @@ class Key:
             if t in (list, dict) and self.item_type is not None:
                 kind = "list" if t is list else "table"
                 n = f" (length {self.length})" if t is list and self.length is not None else ""
-                names.append(f"{kind} of {_TYPE_NAMES[self.item_type]}{n}")
+                item = _TYPE_NAMES[self.item_type]
+                if t is list and self.item_length is not None:
+                    item = f"[{', '.join([item] * self.item_length)}]"
+                names.append(f"{kind} of {item}{n}")
             else:
                 names.append(_TYPE_NAMES[t])
         return " or ".join(names)
@@ -224,6 +232,18 @@ class Key:
         return True, out, None
 
     def _item(self, v, names):
+        if self.item_length is not None:
+            if not isinstance(v, list | tuple) or len(v) != self.item_length:
+                return False, None, f"expected a list of {self.item_length} numbers, got {show(v)}"
+            out = []
+            for x in v:
+                ok, o, why = self._scalar(self.item_type, x)
+                if ok:
+                    why = self._range_error(o, names)
+                if why is not None:
+                    return False, None, why
+                out.append(o)
+            return True, out, None
         if self.item_type is None:
             if isinstance(v, Mapping | list | tuple):
                 return False, None, f"nested {_kind(v)} not allowed"

@@ -9,7 +9,9 @@
   both axes) over the disc |x| < ``r_far``, h = ``case.lattice_ratio`` times the body's quadrature
   spacing (its perimeter / ``case.n_theta``).  Lattice points inside the body or closer than
   :data:`GAP` h to its curve are removed (the cut-out works for any closed curve: it uses the
-  curve's polygon of :data:`FINE` x ``n_theta`` vertices, not a formula of the circle).
+  curve's polygon of :data:`FINE` x ``n_theta`` vertices, or a polygon body's own vertices, not
+  a formula of the circle).  The only layout of a ``"polygon"`` or ``"spline"`` body
+  (:func:`shape_curve`; decision 103).
 * ``"blend"``: the polar rings out to ``case.blend_radius`` (its ring edges end there exactly),
   the same square lattice beyond, with h the particle spacing sqrt(V) of the outermost ring (so
   the ring spacing matches the lattice spacing at the blend radius); lattice points inside the
@@ -68,7 +70,8 @@ import numpy as np
 from scipy.spatial import Voronoi, cKDTree
 
 from ..errors import InputError
-from ..geometry.checks import inside_polygon, spacing_ratio
+from ..geometry import Polygon, Spline, curve_params
+from ..geometry.checks import inside_polygon, self_crossing, spacing_ratio
 from ..registry import Registry
 from ..state import Kind
 from .layouts import elliptic_polar_layout, polar_layout, polar_ring_edges
@@ -82,7 +85,9 @@ FINE = 16
 #: Fewest lattice spacings around the body's perimeter (n_theta / lattice_ratio).
 MIN_SPACINGS_AROUND = 20
 #: Parameters a lattice layout cannot follow (shape derivatives refused).
-SHAPE_FIELDS = ("centre", "radius", "aspect")
+SHAPE_FIELDS = ("centre", "radius", "aspect", "vertices", "knots")
+#: ``case.body`` values given by points (``case.body_points``), not by a formula; lattice layouts only.
+POINT_BODIES = ("polygon", "spline")
 
 #: Layouts around a body (the ``cylinder`` case's ``case.layout``; the kind is a label, since other
 #: cases' ``case.layout`` keys name their own, unregistered, layouts).
@@ -107,10 +112,50 @@ class BodyLayout(NamedTuple):
 # --- geometry ---------------------------------------------------------------------------------
 
 def body_polygon(body, params) -> np.ndarray:
-    """The closed body curve as a polygon of :data:`FINE` x ``n_points`` vertices (counter-
-    clockwise for the built-in curves)."""
+    """The closed body curve as a polygon: a :class:`~mlsph_jax.geometry.Polygon`'s own vertices,
+    else :data:`FINE` x ``n_points`` points of the curve (counter-clockwise for the built-in
+    curves)."""
+    if isinstance(body, Polygon):
+        return np.asarray(params[body.key("vertices")], float)
     fine = dataclasses.replace(body, n_points=FINE * body.n_points)
     return np.asarray(fine.points(params)[0], float)
+
+
+def shape_curve(case: Mapping, name: str = "body"):
+    """The curve of a ``case.body`` given by points (:data:`POINT_BODIES`; decision 103):
+    ``case.body_points`` scaled by D = 2 ``case.radius`` (the points are in units of the reference
+    length D, about the body's centre, the origin), a :class:`~mlsph_jax.geometry.Polygon` with
+    pieces no longer than its perimeter / ``case.n_theta`` or a periodic cubic
+    :class:`~mlsph_jax.geometry.Spline` with ``case.n_theta`` quadrature points."""
+    pts = 2.0 * case["radius"] * np.asarray(case["body_points"], float)
+    if case["body"] == "polygon":
+        perimeter = float(np.sum(np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1)))
+        return Polygon(name, vertices=pts, spacing=perimeter / case["n_theta"])
+    return Spline(name, knots=pts, n_points=case["n_theta"])
+
+
+def shape_problems(case: Mapping) -> list[str]:
+    """What is wrong with ``case.body_points`` for a body given by points: fewer than 3 points,
+    a repeated point, no enclosed area, or a curve (the polygon through the points, or the
+    spline's fine polygon) that crosses itself."""
+    pts, key = np.asarray(case["body_points"], float).reshape(-1, 2), "case.body_points"
+    if len(pts) < 3:
+        return [f"invalid {key} with {len(pts)} points for case.body={case['body']!r}: allowed: at least 3 "
+                "[x, y] points in units of D = 2 case.radius about the body's centre"]
+    gaps = np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1)
+    if np.any(gaps == 0.0):
+        k = int(np.argmin(gaps))
+        return [f"invalid {key}: point {k} {pts[k].tolist()} repeats the next one; allowed: distinct consecutive "
+                "points (the curve closes itself: do not repeat the first point at the end)"]
+    poly = shape_outline(case)
+    k = self_crossing(poly)
+    if k is not None:
+        near = np.round(poly[k[0]] / (2.0 * case["radius"]), 6).tolist()
+        return [f"invalid {key}: the {case['body']} through the points crosses itself (near {near} in units of "
+                "D); allowed: points in order around a simple closed curve"]
+    if abs(polygon_area(poly)) <= 1e-12 * float(np.sum(gaps)) ** 2 * (2.0 * case["radius"]) ** 2:
+        return [f"invalid {key}: the {case['body']} encloses no area; allowed: points around a body"]
+    return []
 
 
 def polygon_area(poly: np.ndarray) -> float:
@@ -292,15 +337,35 @@ def far_rings(case: Mapping, support: Callable[[float], float], names) -> int:
     return k + 1
 
 
+def shape_outline(case: Mapping) -> np.ndarray:
+    """The polygon (:func:`body_polygon`) of a body given by points, from the config alone."""
+    curve = shape_curve(case)
+    return body_polygon(curve, curve_params([curve]))
+
+
 def _extent(case: Mapping) -> float:
-    """Largest distance of the body's curve from its centre (an ellipse: its semi-major axis)."""
+    """Largest distance of the body's curve from its centre (an ellipse: its semi-major axis; a
+    body given by points: from the origin)."""
+    if case["body"] in POINT_BODIES:
+        return float(np.max(np.hypot(*shape_outline(case).T)))
     return case["radius"] * (math.sqrt(max(case["aspect"], 1.0 / case["aspect"])) if case["body"] == "ellipse"
                              else 1.0)
+
+
+def body_area_radius(case: Mapping) -> float:
+    """The radius of the circle with the body's area (``case.radius`` for the circle and the
+    ellipse; from the outline for a body given by points)."""
+    if case["body"] in POINT_BODIES:
+        return math.sqrt(abs(polygon_area(shape_outline(case))) / math.pi)
+    return case["radius"]
 
 
 def _perimeter_estimate(case: Mapping) -> float:
     """The body's perimeter (Ramanujan's approximation for the ellipse; config checks only)."""
     R = case["radius"]
+    if case["body"] in POINT_BODIES:
+        poly = shape_outline(case)
+        return float(np.sum(np.linalg.norm(np.roll(poly, -1, axis=0) - poly, axis=1)))
     if case["body"] != "ellipse":
         return 2.0 * math.pi * R
     a, b = R * math.sqrt(case["aspect"]), R / math.sqrt(case["aspect"])
@@ -384,8 +449,9 @@ class Cartesian:
     def count(case: Mapping, support: Callable[[float], float]) -> tuple[int, tuple[str, ...]]:
         """The lattice over the disc of r_far plus the frozen reach, less the body's area (an
         equal-area radius for the ellipse)."""
-        return (_lattice_count(case, lattice_spacing(case), case["radius"], support),
-                ("case.layout", "case.r_far", "case.lattice_ratio", "case.n_theta", "case.radius"))
+        keys = ("case.layout", "case.r_far", "case.lattice_ratio", "case.n_theta", "case.radius")
+        return (_lattice_count(case, lattice_spacing(case), body_area_radius(case), support),
+                keys + (("case.body_points",) if case["body"] in POINT_BODIES else ()))
 
 
 class Blend:

@@ -46,6 +46,19 @@ stream direction), which :mod:`mlsph_jax.sensitivity` starts every differentiate
 coefficients' length is D = 2R (the equal-area diameter; the chord is 2a).  The recirculation
 length of an ellipse is reported at alpha = 0 only (behind the rear point x = a).
 
+Bodies given by points (``case.body = "polygon"`` or ``"spline"``; decision 103).  The closed
+polygon through ``case.body_points`` (a :class:`~mlsph_jax.geometry.Polygon`, edges cut into pieces
+no longer than its perimeter / ``n_theta``, midpoint rule) or the periodic cubic spline through them
+(:class:`~mlsph_jax.geometry.Spline`, ``n_theta`` points); the points are in units of the reference
+length D = 2 ``radius`` about the body's centre, the origin, so ``radius`` scales the shape and D
+stays the length of Re, C_D, C_L and Nu (a square of side D: corners at +-0.5).  Only the
+``cartesian`` layout fits an arbitrary curve; ``alpha`` turns the stream as for the ellipse, the
+aspect ratio must stay 1.  C_p(theta) and the front / base values use the angle about the origin
+(a star-shaped body about its centre reads naturally); the recirculation length starts at the
+body's rearmost crossing of the wake axis y = 0 (none at incidence or for a body off the axis).
+At a sharp corner the wall state is a one-sided MLS extrapolation across the corner, so C_p and
+C_f at the quadrature points next to a corner are not converged values (docs/validation.md).
+
 Far field (SPEC §5.8 [REC], §8.5).  Beyond ``r_far`` the geometric rings continue as FROZEN
 particles (:class:`~mlsph_jax.state.Kind`) holding the free-stream state: the integrator never
 updates a frozen particle (its state is the free stream bit for bit at every stage, which is the
@@ -166,7 +179,16 @@ from ..schema import Key, join_problems, show
 from ..simulation import Problem
 from ..state import Domain, Kind, Params, Particles, make_particles
 from .base import register_case
-from .body_layouts import BODY_LAYOUTS, check_outside, far_rings
+from .body_layouts import (
+    BODY_LAYOUTS,
+    POINT_BODIES,
+    body_polygon,
+    check_outside,
+    far_rings,
+    shape_curve,
+    shape_outline,
+    shape_problems,
+)
 from .common import params_from_config, scheme_from_config, steady_tol_key
 from .layouts import polar_ring_edges
 
@@ -179,8 +201,8 @@ _NAMES = ("case.radius", "case.n_theta", "case.r_far")
 #: The trigger vortex must fit in the fluid out to this many core radii (its velocity there is
 #: ~1e-6 of the peak).
 TRIGGER_REACH = 4.0
-#: ``case.body`` choices: the curve of each.
-BODIES = ("circle", "ellipse")
+#: ``case.body`` choices: the curve of each (:func:`body_curve`).
+BODIES = ("circle", "ellipse", *POINT_BODIES)
 
 
 def cylinder_viscosity(cfg: Mapping) -> float:
@@ -225,7 +247,9 @@ def check_cylinder(cfg: dict) -> None:
     quadrature pieces (naming `lattice_ratio` or `n_theta`) and any layout leaving a fluid particle
     inside the body."""
     c, phys = cfg["case"], cfg["physics"]
-    problems = []
+    problems = _body_problems(c)
+    if problems and c["body"] in POINT_BODIES:      # the layout checks below need a valid shape
+        raise ConfigError(join_problems(problems))
     if cfg["eos"]["kind"] != "ideal_gas":
         problems.append(f"invalid eos.kind={show(cfg['eos']['kind'])}: case cylinder is a compressible "
                         "ideal-gas flow at free-stream Mach number case.mach (thesis §4.5.2); allowed: \"ideal_gas\"")
@@ -262,7 +286,7 @@ def check_cylinder(cfg: dict) -> None:
     if c["perturbation"] > 0.0:
         D, core, xv = 2.0 * c["radius"], c["perturbation_core"], c["perturbation_x"]
         # the body's largest half-extent in units of D (an ellipse: its semi-major axis)
-        half = 0.5 * math.sqrt(max(c["aspect"], 1.0 / c["aspect"])) if c["body"] == "ellipse" else 0.5
+        half = body_extent(c) / D
         if xv - 2.0 * core < half:   # its shield too: cut by the body it would leave net circulation
             problems.append(f"invalid case.perturbation_x={show(xv)} with case.perturbation_core={show(core)}: the "
                             f"trigger vortex (core and shield, two core radii) reaches into the body (x / D < "
@@ -286,6 +310,35 @@ def check_cylinder(cfg: dict) -> None:
                             "allowed: rho_inf |f| 2 r_far / p_inf <= 50")
     if problems:
         raise ConfigError(join_problems(problems))
+
+
+def body_extent(case: Mapping) -> float:
+    """The largest distance of the body's curve from its centre, the origin (R for the circle, the
+    semi-major axis of an ellipse, from the outline of a body given by points)."""
+    if case["body"] in POINT_BODIES:
+        return float(np.max(np.hypot(*shape_outline(case).T)))
+    return case["radius"] * (math.sqrt(max(case["aspect"], 1.0 / case["aspect"])) if case["body"] == "ellipse"
+                             else 1.0)
+
+
+def _body_problems(c: Mapping) -> list[str]:
+    """A body given by points (decision 103) needs ``body_points`` (a simple closed curve), the
+    ``cartesian`` layout and aspect 1; the points are refused for a circle or an ellipse."""
+    if c["body"] not in POINT_BODIES:
+        if c["body_points"]:
+            return [f"invalid case.body_points={show(c['body_points'])} with case.body={show(c['body'])}: points "
+                    f"give the body's shape for case.body = {' / '.join(map(show, POINT_BODIES))} only; allowed: "
+                    f"case.body_points = [] or case.body = {show(POINT_BODIES[0])}"]
+        return []
+    problems = []
+    if c["layout"] != "cartesian":
+        problems.append(f"invalid case.layout={show(c['layout'])} with case.body={show(c['body'])}: the polar "
+                        "rings (and the blend and graded layouts built on them) are fitted to a circle or an "
+                        "ellipse; allowed: case.layout = \"cartesian\" (a lattice with the body cut out)")
+    if c["aspect"] != 1.0:
+        problems.append(f"invalid case.aspect={show(c['aspect'])} with case.body={show(c['body'])}: the points give "
+                        "the shape; allowed: case.aspect = 1 (scale the points instead)")
+    return problems + shape_problems(c)
 
 
 def _heat_problems(cfg: Mapping) -> list[str]:
@@ -363,13 +416,21 @@ CYLINDER_KEYS: dict[str, Key] = {
     "body": Key(str, "circle", choices=BODIES,
                 doc="the body: a circle of case.radius, or an ellipse of the same area (equal-area radius "
                     "case.radius, aspect ratio case.aspect, angle of attack case.alpha) on the conformally "
-                    "mapped polar layout (docs/architecture.md decision 65)"),
+                    "mapped polar layout (docs/architecture.md decision 65), or a polygon through / a periodic "
+                    "cubic spline through case.body_points on the cartesian layout (decision 103)"),
+    "body_points": Key(list, [], item_type=float, item_length=2,
+                       doc="case.body = \"polygon\" / \"spline\" only: the vertices / knots [[x, y], ...] in "
+                           "units of D = 2 case.radius about the body's centre (the origin), in order around the "
+                           "body (either sense, the first point not repeated); D is the reference length of "
+                           "case.re, C_D, C_L and Nu (a square cylinder of side D: [[-0.5, -0.5], [0.5, -0.5], "
+                           "[0.5, 0.5], [-0.5, 0.5]]); the polygon's edges are cut into pieces no longer than "
+                           "its perimeter / case.n_theta"),
     "aspect": Key(float, 1.0, minimum=0.0, exclusive_minimum=True,
                   doc="ellipse only: aspect ratio a/b of the semi-axes along/across its chord, a = R sqrt(aspect), "
                       "b = R / sqrt(aspect) (R = case.radius; parameter geometry.body.aspect)"),
     "alpha": Key(float, 0.0, minimum=-90.0, maximum=90.0, unit="deg",
-                 doc="ellipse only: angle of attack, nose up, in degrees (realised by turning the free stream "
-                     "to (cos alpha, sin alpha); parameter geometry.body.alpha in radians)"),
+                 doc="ellipse, polygon and spline bodies: angle of attack, nose up, in degrees (realised by "
+                     "turning the free stream to (cos alpha, sin alpha); parameter geometry.body.alpha in radians)"),
     "perturbation": Key(float, 0.0, minimum=0.0, maximum=0.5,
                         doc="symmetry-breaking trigger for vortex shedding: peak swirl speed / U_inf of a "
                             "divergence-free, shielded (zero-circulation) Gaussian vortex added to the initial "
@@ -478,8 +539,11 @@ def body_curve(cfg: Mapping):
     """The body's curve: a :class:`~mlsph_jax.geometry.Circle` of ``case.radius``, or for
     ``case.body = "ellipse"`` the :class:`~mlsph_jax.geometry.StreamEllipse` of equal-area radius
     ``case.radius``, aspect ``case.aspect`` and angle of attack ``case.alpha`` (degrees in the
-    config, radians in ``geometry.body.alpha``); ``case.n_theta`` quadrature points."""
+    config, radians in ``geometry.body.alpha``); ``case.n_theta`` quadrature points; a polygon or
+    spline through ``case.body_points`` (:func:`~mlsph_jax.cases.body_layouts.shape_curve`)."""
     c = cfg["case"]
+    if c["body"] in POINT_BODIES:
+        return shape_curve(c, BODY)
     if c["body"] == "ellipse":
         return StreamEllipse(BODY, radius=float(c["radius"]), aspect=float(c["aspect"]),
                              alpha=math.radians(c["alpha"]), incidence="stream", n_points=c["n_theta"])
@@ -496,6 +560,8 @@ def build(cfg: Mapping) -> Problem:
     body = body_curve(cfg)
     # the body's geometry parameters live in the Params (differentiable, `mlsph sensitivity --wrt`)
     params = params.updated({k: jnp.asarray(v, jnp.float64) for k, v in body.defaults().items()})
+    if c["body"] in POINT_BODIES:    # the angle of attack turns the stream, as for the ellipse
+        params = params.updated({f"geometry.{BODY}.alpha": jnp.asarray(math.radians(c["alpha"]), jnp.float64)})
     lay = BODY_LAYOUTS.get(c["layout"], "case.layout").build(c, body, params, lambda dx: _support_radius(cfg, dx),
                                                              _NAMES)
     x, vol, kind = lay.x, lay.vol, lay.kind
@@ -507,7 +573,7 @@ def build(cfg: Mapping) -> Problem:
     polar_circle = c["layout"] == "polar" and c["body"] == "circle"
     half = (lay.bound if polar_circle else float(np.max(np.abs(x)))) * 1.01
     domain = Domain((-half, -half), (half, half), (False, False))
-    band = R * 2.0 * math.pi / n_theta
+    band = R * 2.0 * math.pi / n_theta if c["body"] not in POINT_BODIES else lay.h
     e_inf = free_stream_energy(cfg)
     ratio = c["wall_temperature"]
     particles, walls = BOUNDARIES.get("boundary_integral").setup(
@@ -535,16 +601,26 @@ def build(cfg: Mapping) -> Problem:
     p_inf = float(free_stream(cfg, np.zeros((1, 2)), params)[2][0])
     q_inf = 0.5 * RHO_INF * U_INF ** 2
 
+    def reference_length(P):
+        """D = 2 R: the circle's or the ellipse's (equal-area) diameter from the Params; for a body
+        given by points the fixed scale of its points (decision 103)."""
+        key = body.key("radius")
+        return 2.0 * P[key] if key in P else 2.0 * R
+
+    def body_centre(P):
+        key = body.key("centre")
+        return P[key] if key in P else np.zeros(2)
+
     def coefficients(p: Particles, t: float, P) -> dict:
         """C_D, C_L and their parts (jnp, differentiable)."""
         co = walls.coefficients(p, P, scheme, rho_inf=RHO_INF, u_inf=stream_velocity(P, jnp),
-                                length=2.0 * P[body.key("radius")], curve=BODY)
+                                length=reference_length(P), curve=BODY)
         co = {**co, "cd_viscous": co["cd"] - co["cd_pressure"], "cl_viscous": co["cl"] - co["cl_pressure"]}
         if heated:    # Nu = Q D / (perimeter kappa (e_w - e_inf)), module docstring
             q, length = walls.heat_rates(p, P, scheme)
             k = [cv.name for cv in walls.curves].index(BODY)
             scale = length[k] * P["physics.kappa"] * (P[f"geometry.{BODY}.wall_e"] - e_inf)
-            co["nusselt"] = q[k] * 2.0 * P[body.key("radius")] / scale
+            co["nusselt"] = q[k] * reference_length(P) / scale
         return co
 
     @jax.jit
@@ -554,7 +630,7 @@ def build(cfg: Mapping) -> Problem:
         traction tau_b n_b."""
         prim = to_primitive(p.U, eos, P)
         bp, _, _, pb, tn, qb = walls.wall_state(p, P, scheme, prim)
-        nu = (qb * 2.0 * P[body.key("radius")] / (P["physics.kappa"] * (P[f"geometry.{BODY}.wall_e"] - e_inf))
+        nu = (qb * reference_length(P) / (P["physics.kappa"] * (P[f"geometry.{BODY}.wall_e"] - e_inf))
               if heated else qb)
         return coefficients(p, 0.0, P), bp.x, bp.normal, bp.curve, pb, tn, nu
 
@@ -567,13 +643,17 @@ def build(cfg: Mapping) -> Problem:
         if heated:
             out["nusselt_front"] = float(periodic_interpolate(*body_values(walls, xb, curve, nu), math.pi))
         if scheme.viscous:
-            phi, upper, cf = body_cf(walls, xb, normal, curve, tn, P[body.key("centre")], stream_velocity(P), q_inf)
+            phi, upper, cf = body_cf(walls, xb, normal, curve, tn, body_centre(P), stream_velocity(P), q_inf)
             out["separation_angle"], out["separation_angle_lower"] = separation_angles(phi, upper, cf)
         return out
 
     def metrics(p: Particles, t: float, P) -> dict[str, float]:
         out = diagnostics(p, t, P)
-        if c["layout"] != "polar":
+        if c["body"] in POINT_BODIES:
+            base = rear_on_axis(body_polygon(body, P))
+            if float(P[body.key("alpha")]) == 0.0 and base is not None:
+                out["recirculation_length"] = axis_recirculation_length(p, P, scheme, base, 2.0 * R, lay.h)
+        elif c["layout"] != "polar":
             if c["body"] == "circle" or float(P[body.key("alpha")]) == 0.0:
                 base = float(body._axes(P)[0][0]) + float(P[body.key("centre")][0])
                 out["recirculation_length"] = axis_recirculation_length(p, P, scheme, base, 2.0 * R, lay.h)
@@ -590,10 +670,10 @@ def build(cfg: Mapping) -> Problem:
         if heated:
             plot_nu(Path(out) / "nu.png", *body_values(walls, xb, curve, nu), title=_title(cfg, p.n, t))
         if scheme.viscous:
-            plot_cf(Path(out) / "cf.png", *body_cf(walls, xb, normal, curve, tn, P[body.key("centre")],
+            plot_cf(Path(out) / "cf.png", *body_cf(walls, xb, normal, curve, tn, body_centre(P),
                                                    stream_velocity(P), q_inf), title=_title(cfg, p.n, t))
         plot_field(Path(out) / "velocity_field.png", p, P, scheme, R, title=_title(cfg, p.n, t),
-                   outline=None if c["body"] == "circle" else np.asarray(walls.points(P).x))
+                   outline=None if c["body"] == "circle" else body_polygon(body, P))
 
     def series_statistics(series) -> dict:
         if cfg["time"]["local_time_stepping"]:
@@ -648,6 +728,8 @@ def _title(cfg, n: int, t: float | None = None) -> str:
     when = f", t={t:.4g}" if t is not None else ""
     if c["body"] == "ellipse":
         when += f", ellipse A={c['aspect']:g}, alpha={c['alpha']:g} deg"
+    elif c["body"] in POINT_BODIES:
+        when += f", {c['body']} of {len(c['body_points'])} points, alpha={c['alpha']:g} deg"
     if c["layout"] != "polar":
         when += f", {c['layout']} layout"
     if c["wall_temperature"] > 0.0:
@@ -756,6 +838,17 @@ def recirculation_length(p: Particles, P, scheme, radius: float, n_theta: int, b
     k = int(ahead[0])
     x0 = xa[k - 1] + (xa[k] - xa[k - 1]) * (-ua[k - 1]) / (ua[k] - ua[k - 1])
     return float((x0 - radius) / D)
+
+
+def rear_on_axis(poly: np.ndarray) -> float | None:
+    """The largest x at which the closed polygon ``poly[m, 2]`` meets the axis y = 0 (the body's
+    rear on the wake axis), None when it does not reach the axis."""
+    a, b = poly, np.roll(poly, -1, axis=0)
+    cross = (a[:, 1] <= 0.0) != (b[:, 1] <= 0.0)
+    if not cross.any():
+        return None
+    a, b = a[cross], b[cross]
+    return float(np.max(a[:, 0] + (b[:, 0] - a[:, 0]) * (0.0 - a[:, 1]) / (b[:, 1] - a[:, 1])))
 
 
 def axis_recirculation_length(p: Particles, P, scheme, base: float, D: float, h: float) -> float:

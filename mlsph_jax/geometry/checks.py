@@ -97,6 +97,20 @@ def _crossings(a1, b1, a2, b2):
     return (o1 * o2 < 0) & (o3 * o4 < 0)
 
 
+def self_crossing(poly: np.ndarray) -> tuple[int, int] | None:
+    """The first pair of non-adjacent edges (i, j) of the closed polygon ``poly[m, 2]`` that cross
+    each other properly, or None for a simple polygon."""
+    a, b = _edges(poly, True)
+    hit = _crossings(a, b, a, b)
+    m = len(a)
+    i, j = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
+    hit &= (np.abs(i - j) > 1) & (np.abs(i - j) < m - 1)
+    if not hit.any():
+        return None
+    k = np.argwhere(hit)[0]
+    return int(k[0]), int(k[1])
+
+
 def outline(curve, params: Params) -> np.ndarray:
     """The polygon used by the checks: a segment's end points, a polygon's vertices, else the
     quadrature points (in order)."""
@@ -117,15 +131,10 @@ def check_geometry(curves, params: Params, x, vol, kind=None, domain=None, max_s
     outl = [outline(c, params) for c in curves]
     for c, poly in zip(curves, outl, strict=True):
         if c.closed:
-            a, b = _edges(poly, True)
-            hit = _crossings(a, b, a, b)
-            m = len(a)
-            i, j = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
-            hit &= (np.abs(i - j) > 1) & (np.abs(i - j) < m - 1)
-            if hit.any():
-                k = np.argwhere(hit)[0]
+            k = self_crossing(poly)
+            if k is not None:
                 raise InputError(f"invalid geometry.{c.name}: the curve intersects itself (edges {k[0]} and {k[1]} "
-                                 f"cross near x={np.round(a[k[0]], 6).tolist()}); allowed: a simple closed curve")
+                                 f"cross near x={np.round(poly[k[0]], 6).tolist()}); allowed: a simple closed curve")
         if domain is not None and c.closed:
             lo, hi = np.asarray(domain.lower), np.asarray(domain.upper)
             out = np.any((poly <= lo) | (poly >= hi), axis=1)
