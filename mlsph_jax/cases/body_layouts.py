@@ -73,6 +73,7 @@ from ..errors import InputError
 from ..geometry import Polygon, Spline, curve_params
 from ..geometry.checks import inside_polygon, self_crossing, spacing_ratio
 from ..registry import Registry
+from ..schema import show
 from ..state import Kind
 from .layouts import elliptic_polar_layout, polar_layout, polar_ring_edges
 
@@ -134,27 +135,41 @@ def shape_curve(case: Mapping, name: str = "body"):
     return Spline(name, knots=pts, n_points=case["n_theta"])
 
 
+def points_text(points) -> str:
+    """``case.body_points`` as written in TOML, shortened to its first three points and the count
+    when it has more than eight (messages)."""
+    pts = [list(map(float, q)) for q in points]
+    if len(pts) <= 8:
+        return show(pts)
+    return show(pts[:3])[:-1] + f", ... ({len(pts)} points)]"
+
+
 def shape_problems(case: Mapping) -> list[str]:
-    """What is wrong with ``case.body_points`` for a body given by points: fewer than 3 points,
-    a repeated point, no enclosed area, or a curve (the polygon through the points, or the
-    spline's fine polygon) that crosses itself."""
-    pts, key = np.asarray(case["body_points"], float).reshape(-1, 2), "case.body_points"
+    """What is wrong with ``case.body_points`` for a body given by points: fewer than 3 points, a
+    point repeated (next to each other or anywhere: a pinch), a curve that is not simple (the
+    polygon through the points or the spline's polyline of 4 ``n_theta`` points crosses or touches
+    itself, or turns back onto itself: collinear points enclosing no area included), or the body's
+    centre, the origin, not inside it (the angles of C_p(theta), the wake axis and the trigger are taken about it)."""
+    raw, key = case["body_points"], "case.body_points"
+    pts = np.asarray(raw, float).reshape(-1, 2)
+    what = f"invalid {key}={points_text(raw)} for case.body={show(case['body'])}"
     if len(pts) < 3:
-        return [f"invalid {key} with {len(pts)} points for case.body={case['body']!r}: allowed: at least 3 "
-                "[x, y] points in units of D = 2 case.radius about the body's centre"]
-    gaps = np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1)
-    if np.any(gaps == 0.0):
-        k = int(np.argmin(gaps))
-        return [f"invalid {key}: point {k} {pts[k].tolist()} repeats the next one; allowed: distinct consecutive "
-                "points (the curve closes itself: do not repeat the first point at the end)"]
-    poly = shape_outline(case)
-    k = self_crossing(poly)
+        return [f"{what}: {len(pts)} points; allowed: at least 3 [x, y] points in units of D = 2 case.radius "
+                "about the body's centre (the origin)"]
+    same = np.flatnonzero(np.all(pts[:, None] == pts[None], axis=-1).sum(axis=1) > 1)
+    if same.size:
+        k = int(same[0])
+        return [f"{what}: point {k} {pts[k].tolist()} appears more than once; allowed: distinct points (the "
+                "curve closes itself: do not repeat the first point at the end)"]
+    poly = shape_outline(case, fine=4)
+    k = self_crossing(poly, touching=True)
     if k is not None:
         near = np.round(poly[k[0]] / (2.0 * case["radius"]), 6).tolist()
-        return [f"invalid {key}: the {case['body']} through the points crosses itself (near {near} in units of "
-                "D); allowed: points in order around a simple closed curve"]
-    if abs(polygon_area(poly)) <= 1e-12 * float(np.sum(gaps)) ** 2 * (2.0 * case["radius"]) ** 2:
-        return [f"invalid {key}: the {case['body']} encloses no area; allowed: points around a body"]
+        return [f"{what}: the {case['body']} through the points crosses, touches or turns back onto itself (near "
+                f"{near} in units of D); allowed: points in order around a simple closed curve"]
+    if not inside_polygon(np.zeros((1, 2)), poly)[0]:
+        return [f"{what}: the origin (the body's centre) is not inside the body; allowed: points about the origin "
+                "(shift them so that it lies inside)"]
     return []
 
 
@@ -249,11 +264,15 @@ def _fixed_positions(x, vol, body, layout: str, params):
         moving = [k for k in keys if k in P and (isinstance(P[k], jax.core.Tracer)
                                                  or not np.array_equal(np.asarray(P[k], float), setup[k]))]
         if moving:
+            points = any(k.endswith((".vertices", ".knots")) for k in keys)
+            allowed = ("no derivative with respect to the points of a polygon or spline body (only the lattice "
+                       "layout fits them); geometry.body.alpha turns the stream and stays differentiable" if points
+                       else "case.layout=\"polar\" for shape derivatives (geometry.body.alpha turns the stream "
+                       "and stays differentiable)")
             raise InputError(f"invalid derivative or change of {', '.join(moving)} with case.layout=\"{layout}\": "
                              "the lattice is cut out around the body once at set-up (its particle set and "
                              "Voronoi volumes change discontinuously with the body), so it cannot follow the "
-                             "shape; allowed: case.layout=\"polar\" for shape derivatives (geometry.body.alpha "
-                             "turns the stream and stays differentiable)")
+                             f"shape; allowed: {allowed}")
         return x, vol
     return positions_at
 
@@ -337,10 +356,14 @@ def far_rings(case: Mapping, support: Callable[[float], float], names) -> int:
     return k + 1
 
 
-def shape_outline(case: Mapping) -> np.ndarray:
-    """The polygon (:func:`body_polygon`) of a body given by points, from the config alone."""
+def shape_outline(case: Mapping, fine: int = FINE) -> np.ndarray:
+    """The polygon of a body given by points, from the config alone: a polygon's vertices, a
+    spline's ``fine`` x ``n_theta`` points (:func:`body_polygon` with :data:`FINE`)."""
     curve = shape_curve(case)
-    return body_polygon(curve, curve_params([curve]))
+    if isinstance(curve, Polygon):
+        return np.asarray(curve.vertices, float)
+    fine_curve = dataclasses.replace(curve, n_points=fine * curve.n_points)
+    return np.asarray(fine_curve.points(curve_params([curve]))[0], float)
 
 
 def _extent(case: Mapping) -> float:
@@ -363,9 +386,9 @@ def body_area_radius(case: Mapping) -> float:
 def _perimeter_estimate(case: Mapping) -> float:
     """The body's perimeter (Ramanujan's approximation for the ellipse; config checks only)."""
     R = case["radius"]
-    if case["body"] in POINT_BODIES:
-        poly = shape_outline(case)
-        return float(np.sum(np.linalg.norm(np.roll(poly, -1, axis=0) - poly, axis=1)))
+    if case["body"] in POINT_BODIES:        # as the build measures it: the quadrature's lengths
+        curve = shape_curve(case)
+        return float(np.sum(np.asarray(curve.points(curve_params([curve]))[1])))
     if case["body"] != "ellipse":
         return 2.0 * math.pi * R
     a, b = R * math.sqrt(case["aspect"]), R / math.sqrt(case["aspect"])
@@ -449,9 +472,8 @@ class Cartesian:
     def count(case: Mapping, support: Callable[[float], float]) -> tuple[int, tuple[str, ...]]:
         """The lattice over the disc of r_far plus the frozen reach, less the body's area (an
         equal-area radius for the ellipse)."""
-        keys = ("case.layout", "case.r_far", "case.lattice_ratio", "case.n_theta", "case.radius")
         return (_lattice_count(case, lattice_spacing(case), body_area_radius(case), support),
-                keys + (("case.body_points",) if case["body"] in POINT_BODIES else ()))
+                ("case.layout", "case.r_far", "case.lattice_ratio", "case.n_theta", "case.radius"))
 
 
 class Blend:

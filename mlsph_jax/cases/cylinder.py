@@ -171,6 +171,7 @@ from ..eos import get_eos, to_conservative, to_primitive
 from ..errors import ConfigError, InputError
 from ..far_field import FAR_FIELDS, with_far_field
 from ..geometry import Circle, StreamEllipse
+from ..geometry.checks import detour_around_polygon, inside_polygon
 from ..kernels import get_kernel
 from ..periodic import whole_period_statistics
 from ..plotting import subplots
@@ -184,6 +185,7 @@ from .body_layouts import (
     POINT_BODIES,
     body_polygon,
     check_outside,
+    distance_to_polygon,
     far_rings,
     shape_curve,
     shape_outline,
@@ -201,6 +203,9 @@ _NAMES = ("case.radius", "case.n_theta", "case.r_far")
 #: The trigger vortex must fit in the fluid out to this many core radii (its velocity there is
 #: ~1e-6 of the peak).
 TRIGGER_REACH = 4.0
+#: Neighbours through the body (:func:`_check_line_of_sight`): refused when the way around the
+#: body is longer than the straight line by this fraction of their support radius or more.
+DETOUR_LIMIT = 0.5
 #: ``case.body`` choices: the curve of each (:func:`body_curve`).
 BODIES = ("circle", "ellipse", *POINT_BODIES)
 
@@ -286,7 +291,12 @@ def check_cylinder(cfg: dict) -> None:
     if c["perturbation"] > 0.0:
         D, core, xv = 2.0 * c["radius"], c["perturbation_core"], c["perturbation_x"]
         # the body's largest half-extent in units of D (an ellipse: its semi-major axis)
-        half = body_extent(c) / D
+        if c["body"] in POINT_BODIES:     # the room between the vortex centre and the outline, in D
+            poly = shape_outline(c)
+            inside = inside_polygon(np.asarray([[xv * D, 0.0]]), poly)[0]
+            half = xv - (-1.0 if inside else float(distance_to_polygon(np.asarray([[xv * D, 0.0]]), poly)[0]) / D)
+        else:
+            half = body_extent(c) / D
         if xv - 2.0 * core < half:   # its shield too: cut by the body it would leave net circulation
             problems.append(f"invalid case.perturbation_x={show(xv)} with case.perturbation_core={show(core)}: the "
                             f"trigger vortex (core and shield, two core radii) reaches into the body (x / D < "
@@ -583,6 +593,7 @@ def build(cfg: Mapping) -> Problem:
     params = params.updated({k: v for k, v in walls.default_params().items() if k.endswith(".wall_e")})
     heated = ratio > 0.0 and ratio != 1.0      # a temperature difference: the Nusselt number is defined
     _check_far_field_apart(walls, particles)
+    _check_line_of_sight(walls, particles, body, params, cfg)
     far = FAR_FIELDS.get(c["far_field"], "case.far_field").setup(
         particles, scheme.eos, lambda xf, P: free_stream(cfg, xf, P, xp=jnp))
     boundary = with_far_field(walls, far)
@@ -666,7 +677,8 @@ def build(cfg: Mapping) -> Problem:
 
     def plot(out: Path, p: Particles, t: float, P) -> None:
         _, xb, normal, curve, pb, tn, nu = wall_diagnostics(p, P)     # one wall evaluation for every plot
-        plot_cp(Path(out) / "cp.png", *body_cp(walls, xb, curve, pb, p_inf, q_inf), title=_title(cfg, p.n, t))
+        plot_cp(Path(out) / "cp.png", *body_cp(walls, xb, curve, pb, p_inf, q_inf), title=_title(cfg, p.n, t),
+                references=c["body"] == "circle")
         if heated:
             plot_nu(Path(out) / "nu.png", *body_values(walls, xb, curve, nu), title=_title(cfg, p.n, t))
         if scheme.viscous:
@@ -711,6 +723,65 @@ def _check_far_field_apart(walls, p: Particles) -> None:
     if np.any(frozen & np.asarray(st.mask)):
         raise InputError("invalid case.r_far: far-field (frozen) particles lie in the support of the body's wall "
                          "points; allowed: a larger case.r_far or a smaller case.radius")
+
+
+def _check_line_of_sight(walls, p: Particles, body, params, cfg: Mapping) -> None:
+    """No two particles, and no wall point and particle, may be neighbours through the body (a
+    body thinner than the particles' support, or a sharp feature the layout does not resolve,
+    would pass fluxes and wall-fit samples across it): where the segment between a pair passes
+    through the body polygon, the way around the body between them
+    (:func:`~mlsph_jax.geometry.checks.detour_around_polygon`) may exceed the straight distance by
+    less than :data:`DETOUR_LIMIT` of their support radius (a pair clipping a convex corner adds
+    about the corner's depth into the segment, a fraction of a spacing; a pair on the two sides
+    of a plate adds the way around its end).  Pairs as the neighbour search makes them, |x_i - x_j| < support
+    max(h_i, h_j), h = beta sqrt(V); wall-point stencils as the boundary term uses them (radius
+    support h_b), each segment started 1e-3 dGamma_b off the wall into the fluid (the curve's
+    polygon is a chordal one)."""
+    from scipy.spatial import cKDTree
+
+    poly = body_polygon(body, params)
+    x = np.asarray(p.x)
+    reach = _support_radius(cfg, 1.0) * np.sqrt(np.asarray(p.vol))      # linear in the spacing
+    edge = float(np.max(np.linalg.norm(np.roll(poly, -1, axis=0) - poly, axis=1)))
+    near = np.flatnonzero(cKDTree(poly).query(x)[0] < reach + edge)
+    pairs = cKDTree(x[near]).query_pairs(float(reach[near].max()), output_type="ndarray")
+    i, j = near[pairs[:, 0]], near[pairs[:, 1]]
+    limit = np.maximum(reach[i], reach[j])
+    keep = np.linalg.norm(x[i] - x[j], axis=1) < limit
+    i, j, limit = i[keep], j[keep], limit[keep]
+    bad = detour_around_polygon(poly, x[i], x[j]) - np.linalg.norm(x[i] - x[j], axis=1) >= DETOUR_LIMIT * limit
+    where = None
+    if bad.any():
+        k = int(np.argmax(bad))
+        where = f"particles {int(i[k])} at {np.round(x[i[k]], 6).tolist()} and {int(j[k])} at " \
+                f"{np.round(x[j[k]], 6).tolist()}"
+    else:
+        bp = walls.points(params)
+        st = walls.stencils(p, bp.x)
+        on = np.asarray(bp.curve) == [cv.name for cv in walls.curves].index(BODY)
+        xb = np.asarray(bp.x) - 1e-3 * np.asarray(bp.dgamma)[:, None] * np.asarray(bp.normal)
+        b, s = np.nonzero(np.asarray(st.mask) & on[:, None])
+        jj = np.asarray(st.idx)[b, s]
+        radius = get_kernel(cfg["scheme"]["kernel"]).support * np.asarray(st.h)[b]
+        bad = detour_around_polygon(poly, xb[b], x[jj]) - np.linalg.norm(xb[b] - x[jj], axis=1) >= DETOUR_LIMIT * radius
+        if bad.any():
+            k = int(np.argmax(bad))
+            where = f"wall point {int(b[k])} at {np.round(xb[b[k]], 6).tolist()} and particle {int(jj[k])} at " \
+                    f"{np.round(x[jj[k]], 6).tolist()}"
+    if where is None:
+        return
+    c = cfg["case"]
+    if c["body"] in POINT_BODIES:
+        key = f"case.body_points with case.lattice_ratio={show(c['lattice_ratio'])}"
+    elif c["body"] == "ellipse":
+        key = f"case.aspect={show(c['aspect'])} with case.n_theta={c['n_theta']}"
+    else:
+        key = f"case.n_theta={c['n_theta']}"
+    raise InputError(f"invalid {key}: {where} are neighbours through the body (the way around it between them "
+                     f"is longer than the straight line by {DETOUR_LIMIT:g} of their support radius or more: the body "
+                     "is thinner than the particles' support there, so fluxes would cross it); allowed: a finer "
+                     "layout (a larger case.n_theta, or a smaller case.lattice_ratio on the cartesian layout) or a "
+                     "thicker body")
 
 
 CYLINDER = register_case(
@@ -876,12 +947,13 @@ def axis_recirculation_length(p: Particles, P, scheme, base: float, D: float, h:
     return float((x0 - base) / D)
 
 
-def plot_cp(path: Path, theta, cp, title: str = "") -> None:
-    """C_p(theta) at the wall (theta from the base, thesis Fig. 4.9) with Table 4.1's values."""
+def plot_cp(path: Path, theta, cp, title: str = "", references: bool = True) -> None:
+    """C_p(theta) at the wall (theta from the base, thesis Fig. 4.9) with Table 4.1's values (the
+    circle's: ``references`` False for another body)."""
     fig, ax = subplots(figsize=(6.0, 4.2))
     order = np.argsort(theta)
     ax.plot(np.degrees(theta[order]), cp[order], "o-", ms=3, label="MLSPH-ALE (wall p_b)")
-    for name, (_, front, base) in ref.TABLE_4_1.items():
+    for name, (_, front, base) in (ref.TABLE_4_1.items() if references else ()):
         ax.plot([0.0, 180.0, 360.0], [base, front, base], "x", ms=6, label=name)
     _save_angle_plot(fig, ax, path, "theta [deg] (0 = base, 180 = front)", "C_p", title, legend=6)
 
