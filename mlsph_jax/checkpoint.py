@@ -48,8 +48,10 @@ FORMAT_VERSION = 1
 RUN_FILES = ("summary.json", "fields.h5", "fields.xmf", "config.toml", "timeseries.csv", CHECKPOINT)
 #: Files whose presence means: this folder holds a run.
 _RUN_MARKERS = ("summary.json", "fields.h5", CHECKPOINT)
-#: Settings a restart may change (they do not change the numbers of the steps).
-RESTART_MAY_CHANGE = ("time.max_steps", "output.progress", "output.plots", "output.degree_fallback_warn")
+#: Settings a restart may change (they do not change the numbers of the steps; a smaller
+#: ``case.steady_tol`` also continues a run its steady-state test stopped).
+RESTART_MAY_CHANGE = ("time.max_steps", "output.progress", "output.plots", "output.degree_fallback_warn",
+                      "case.steady_tol")
 #: Config keys added after checkpoints were first written, with the value that reproduces the runs
 #: made before them: a run's config without the key restarts when the key has that value now
 #: (:func:`restart_added_keys`; the current config must have the key).

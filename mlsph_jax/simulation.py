@@ -541,9 +541,13 @@ class Simulation:
         if diffs:
             raise InputError(f"{where}: the run was made with other settings: " + "; ".join(diffs)
                              + f"; allowed: the run's own settings (only {', '.join(RESTART_MAY_CHANGE)} may change)")
-        if ck.status == "ok":
+        if ck.status == "ok" and not self._tighter_steady_stop(ck):
+            more = ""
+            if ck.steady and ck.steady.get("converged") and float(ck.t) < self.problem.t_end:
+                more = (f", or this steady-stopped run with a smaller steady-state tolerance (case.steady_tol < "
+                        f"{ck.steady['residual']:.3g}, its residual at the stop; now {self.problem.steady_tol:g})")
             raise InputError(f"{where}: the run is complete (t = {float(ck.t):.6g}, step {int(ck.step)}); allowed: "
-                             "an interrupted or failed run")
+                             f"an interrupted or failed run{more}")
         if int(ck.particles.n) != int(self.problem.particles.n):
             raise InputError(f"{where}: {int(ck.particles.n)} particles in the run, {self.problem.particles.n} now")
         spec = _spec(ck.nspec)
@@ -554,6 +558,15 @@ class Simulation:
         if rebuild:   # the run had regrown its neighbour limits: compile for those
             self._build()
         return ck
+
+    def _tighter_steady_stop(self, ck: Checkpoint) -> bool:
+        """Whether a run that stopped on its steady-state test (before t_end) continues: the
+        tolerance is now below the residual it stopped at, so an uninterrupted run with this
+        tolerance would have gone on from the same state (the steps do not depend on the
+        tolerance, so the continuation is bit for bit that run)."""
+        st = ck.steady or {}
+        return (bool(st.get("converged")) and float(ck.t) < self.problem.t_end
+                and 0.0 < self.problem.steady_tol < float(st.get("residual", 0.0)))
 
     def _regrow(self, carry: Carry, status: Status):
         """Grow the neighbour limits named by the overflow bits of ``status`` (the failing step

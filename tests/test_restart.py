@@ -220,6 +220,26 @@ def test_restart_refusals_name_what_is_wrong(sim, full, tmp_path):
     assert (out / "fields.h5").stat().st_size == len(data) // 2   # nothing rewritten
 
 
+def test_a_steady_stopped_run_continues_with_a_tighter_tolerance(full, tmp_path):
+    """A run stopped by its steady-state test (here a tolerance so loose that the first output
+    stops it) continues from that checkpoint with a smaller tolerance, bit for bit as the run
+    that never stopped (the steps do not depend on the tolerance); the same or a looser
+    tolerance is refused as complete, naming the residual to go below."""
+    _, pb = sod()
+    loose = Simulation(dataclasses.replace(pb, diagnostics=_diagnostics, steady_tol=1e6), chunk=2)
+    stopped = loose.run(tmp_path, snapshots=2, progress=False)
+    st = stopped.summary["steady_state"]
+    assert st["converged"] and stopped.summary["t_final"] < 0.05, st
+    with pytest.raises(InputError, match=r"the run is complete .*case\.steady_tol < .*its residual at the stop"):
+        loose.run(tmp_path, snapshots=2, progress=False, restart=True)
+    tight = Simulation(dataclasses.replace(pb, diagnostics=_diagnostics, steady_tol=1e-30), chunk=2)
+    res = tight.run(tmp_path, snapshots=2, progress=False, restart=True)
+    assert_same_state(res.particles, full.particles)
+    assert res.summary["n_steps"] == full.summary["n_steps"] and res.summary["t_final"] == full.summary["t_final"]
+    assert res.summary["timeseries"] == full.summary["timeseries"]
+    assert not res.summary["steady_state"]["converged"]
+
+
 def test_a_checkpoint_from_before_series_interval_restarts(sim, full, tmp_path):
     """A run checkpointed before ``output.series_interval`` existed (its saved config lacks the key)
     restarts when the key is at its default, 0 (the same targets), and is refused with another

@@ -156,6 +156,11 @@ def shape_problems(case: Mapping) -> list[str]:
     if len(pts) < 3:
         return [f"{what}: {len(pts)} points; allowed: at least 3 [x, y] points in units of D = 2 case.radius "
                 "about the body's centre (the origin)"]
+    size = float(np.max(np.abs(pts))) * 2.0 * case["radius"]
+    if not (math.isfinite(size) and 1e-9 * case["r_far"] < size < case["r_far"]):
+        return [f"{what}: the body reaches {size:.4g} from the origin, against case.r_far={show(case['r_far'])}; "
+                f"allowed: points with 1e-9 case.r_far < max |x|, |y| x D < case.r_far (D = 2 case.radius = "
+                f"{2.0 * case['radius']:.4g})"]
     same = np.flatnonzero(np.all(pts[:, None] == pts[None], axis=-1).sum(axis=1) > 1)
     if same.size:
         k = int(same[0])
@@ -463,7 +468,9 @@ class Cartesian:
         out = ~inside_polygon(cand, poly)
         near = np.hypot(cand[:, 0], cand[:, 1]) < _body_extent(body, params) + 2.0 * h
         keep = out.copy()
-        keep[near] &= distance_to_polygon(cand[near], poly) >= GAP * h
+        # (1 - 1e-9): a point exactly GAP h from the curve (a straight face half a spacing from a
+        # lattice line, e.g. a square of side 2k h) is kept on every face alike, not by round-off
+        keep[near] &= distance_to_polygon(cand[near], poly) >= GAP * h * (1.0 - 1e-9)
         x, vol, kind = _finish(cand[keep], _frozen_lattice(pts, r_far, reach), h, body, params, "cartesian",
                                 case["lattice_ratio"])
         return BodyLayout(x, vol, kind, h, _fixed_positions(x, vol, body, "cartesian", params))

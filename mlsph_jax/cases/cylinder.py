@@ -187,6 +187,7 @@ from .body_layouts import (
     check_outside,
     distance_to_polygon,
     far_rings,
+    points_text,
     shape_curve,
     shape_outline,
     shape_problems,
@@ -204,8 +205,10 @@ _NAMES = ("case.radius", "case.n_theta", "case.r_far")
 #: ~1e-6 of the peak).
 TRIGGER_REACH = 4.0
 #: Neighbours through the body (:func:`_check_line_of_sight`): refused when the way around the
-#: body is longer than the straight line by this fraction of their support radius or more.
-DETOUR_LIMIT = 0.5
+#: body is longer than the straight line by this fraction of their support radius or more.  Near
+#: a corner of half-angle theta the worst pair's excess is ~(1 / sin theta - 1) of the support at
+#: every resolution: 1 refuses corners sharper than 60 degrees (a square's 90 degrees give 0.41).
+DETOUR_LIMIT = 1.0
 #: ``case.body`` choices: the curve of each (:func:`body_curve`).
 BODIES = ("circle", "ellipse", *POINT_BODIES)
 
@@ -291,13 +294,19 @@ def check_cylinder(cfg: dict) -> None:
     if c["perturbation"] > 0.0:
         D, core, xv = 2.0 * c["radius"], c["perturbation_core"], c["perturbation_x"]
         # the body's largest half-extent in units of D (an ellipse: its semi-major axis)
+        room = None
         if c["body"] in POINT_BODIES:     # the room between the vortex centre and the outline, in D
             poly = shape_outline(c)
-            inside = inside_polygon(np.asarray([[xv * D, 0.0]]), poly)[0]
-            half = xv - (-1.0 if inside else float(distance_to_polygon(np.asarray([[xv * D, 0.0]]), poly)[0]) / D)
-        else:
-            half = body_extent(c) / D
-        if xv - 2.0 * core < half:   # its shield too: cut by the body it would leave net circulation
+            centre = np.asarray([[xv * D, 0.0]])
+            room = 0.0 if inside_polygon(centre, poly)[0] else float(distance_to_polygon(centre, poly)[0]) / D
+            if 2.0 * core > room:
+                problems.append(f"invalid case.perturbation_x={show(xv)} with case.perturbation_core={show(core)}: "
+                                f"the trigger vortex (core and shield, two core radii) reaches into the body (its "
+                                f"centre is {room:.4g} D from the outline{', inside it' if room == 0.0 else ''}); "
+                                f"allowed: 2 case.perturbation_core <= the distance from (case.perturbation_x D, 0) "
+                                "to the outline, the centre outside the body")
+        half = body_extent(c) / D
+        if room is None and xv - 2.0 * core < half:   # its shield too: cut by the body it would leave circulation
             problems.append(f"invalid case.perturbation_x={show(xv)} with case.perturbation_core={show(core)}: the "
                             f"trigger vortex (core and shield, two core radii) reaches into the body (x / D < "
                             f"{half:.4g}); allowed: case.perturbation_x - 2 case.perturbation_core >= {half:.4g}")
@@ -733,7 +742,8 @@ def _check_line_of_sight(walls, p: Particles, body, params, cfg: Mapping) -> Non
     (:func:`~mlsph_jax.geometry.checks.detour_around_polygon`) may exceed the straight distance by
     less than :data:`DETOUR_LIMIT` of their support radius (a pair clipping a convex corner adds
     about the corner's depth into the segment, a fraction of a spacing; a pair on the two sides
-    of a plate adds the way around its end).  Pairs as the neighbour search makes them, |x_i - x_j| < support
+    of a plate adds the way around its end; a corner sharper than 60 degrees is refused at any
+    resolution, see :data:`DETOUR_LIMIT`).  Pairs as the neighbour search makes them, |x_i - x_j| < support
     max(h_i, h_j), h = beta sqrt(V); wall-point stencils as the boundary term uses them (radius
     support h_b), each segment started 1e-3 dGamma_b off the wall into the fluid (the curve's
     polygon is a chordal one)."""
@@ -743,7 +753,7 @@ def _check_line_of_sight(walls, p: Particles, body, params, cfg: Mapping) -> Non
     x = np.asarray(p.x)
     reach = _support_radius(cfg, 1.0) * np.sqrt(np.asarray(p.vol))      # linear in the spacing
     edge = float(np.max(np.linalg.norm(np.roll(poly, -1, axis=0) - poly, axis=1)))
-    near = np.flatnonzero(cKDTree(poly).query(x)[0] < reach + edge)
+    near = np.flatnonzero(cKDTree(poly).query(x)[0] < float(reach.max()) + edge)
     pairs = cKDTree(x[near]).query_pairs(float(reach[near].max()), output_type="ndarray")
     i, j = near[pairs[:, 0]], near[pairs[:, 1]]
     limit = np.maximum(reach[i], reach[j])
@@ -772,16 +782,18 @@ def _check_line_of_sight(walls, p: Particles, body, params, cfg: Mapping) -> Non
         return
     c = cfg["case"]
     if c["body"] in POINT_BODIES:
-        key = f"case.body_points with case.lattice_ratio={show(c['lattice_ratio'])}"
+        key = (f"case.body_points={points_text(c['body_points'])} with case.n_theta={c['n_theta']} and "
+               f"case.lattice_ratio={show(c['lattice_ratio'])}")
     elif c["body"] == "ellipse":
         key = f"case.aspect={show(c['aspect'])} with case.n_theta={c['n_theta']}"
     else:
         key = f"case.n_theta={c['n_theta']}"
     raise InputError(f"invalid {key}: {where} are neighbours through the body (the way around it between them "
                      f"is longer than the straight line by {DETOUR_LIMIT:g} of their support radius or more: the body "
-                     "is thinner than the particles' support there, so fluxes would cross it); allowed: a finer "
-                     "layout (a larger case.n_theta, or a smaller case.lattice_ratio on the cartesian layout) or a "
-                     "thicker body")
+                     "is thinner than the particles' support there, or has a corner sharper than 60 degrees, so "
+                     "fluxes would cross it); allowed: a finer layout (a larger case.n_theta) or a thicker body; a "
+                     "corner sharper than 60 degrees is refused at every resolution: round it (e.g. case.body = "
+                     "\"spline\" through the points)")
 
 
 CYLINDER = register_case(

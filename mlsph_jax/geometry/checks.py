@@ -102,12 +102,13 @@ def _crossings(a1, b1, a2, b2):
 
 def detour_around_polygon(poly: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``[K]``: the length of the way from ``a[k]`` to ``b[k]`` around the closed polygon
-    ``poly[m, 2]`` where the straight segment passes through it: along the segment to its first
-    crossing of the polygon, along the polygon's boundary (the shorter way) to the last crossing,
-    and along the segment to b (an upper bound of the shortest path in the fluid); |b - a| for a
-    segment that crosses no edge properly.  A segment clipping a convex corner gets a detour
-    barely longer than itself; one through a plate a detour around its end.  Set-up only (numpy,
-    in chunks of ~1e6 pair tests)."""
+    ``poly[m, 2]`` where the straight segment passes through it: the segment's proper crossings of
+    the edges sorted along it pair up as (in, out) (both ends outside), and each piece inside is
+    replaced by the polygon's boundary between its two crossings, the shorter way (an upper bound
+    of the shortest path in the fluid); |b - a| for a segment that crosses no edge properly (also
+    one that only touches a vertex).  A segment clipping a convex corner gets a detour barely
+    longer than itself; one through a plate a detour around its end.  Set-up only (numpy, in
+    chunks of ~1e6 pair tests; a Python loop over the few segments that cross)."""
     pa, pb = _edges(poly, True)
     e = pb - pa
     lengths = np.linalg.norm(e, axis=1)
@@ -119,24 +120,20 @@ def detour_around_polygon(poly: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.
     for s in range(0, len(a), step):
         a1, b1 = a[s:s + step], b[s:s + step]
         hit = _crossings(a1, b1, pa, pb)
-        rows = np.flatnonzero(hit.any(axis=1))
-        if rows.size == 0:
-            continue
-        d = (b1 - a1)[rows]
-        denom = cross2(d[:, None], e[None])                                   # [R, m]
-        w = pa[None] - a1[rows][:, None]
-        t = cross2(w, e[None]) / np.where(denom == 0, 1.0, denom)             # along the segment
-        u = cross2(w, d[:, None]) / np.where(denom == 0, 1.0, denom)          # along the edge
-        h = hit[rows]
-        t_in = np.where(h, t, np.inf).min(axis=1)
-        t_out = np.where(h, t, -np.inf).max(axis=1)
-        k_in, k_out = np.argmin(np.where(h, t, np.inf), axis=1), np.argmax(np.where(h, t, -np.inf), axis=1)
-        r = np.arange(len(rows))
-        s_in = start[k_in] + u[r, k_in] * lengths[k_in]
-        s_out = start[k_out] + u[r, k_out] * lengths[k_out]
-        arc = np.abs(s_out - s_in)
-        arc = np.minimum(arc, perimeter - arc)
-        out[s + rows] = seg[s + rows] * (t_in + 1.0 - t_out) + arc
+        for r in np.flatnonzero(hit.any(axis=1)):
+            k = np.flatnonzero(hit[r])
+            d = b1[r] - a1[r]
+            denom = cross2(d[None], e[k])
+            w = pa[k] - a1[r]
+            t = cross2(w, e[k]) / denom                                   # along the segment
+            u = cross2(w, d[None]) / denom                                # along each edge
+            order = np.argsort(t)
+            t, pos = t[order], (start[k] + u * lengths[k])[order]
+            if len(t) % 2:              # a vertex hit left one crossing unpaired: no detour known
+                continue
+            arc = np.abs(pos[1::2] - pos[0::2])
+            inside = np.sum(t[1::2] - t[0::2])
+            out[s + r] = seg[s + r] * (1.0 - inside) + np.sum(np.minimum(arc, perimeter - arc))
     return out
 
 
