@@ -110,7 +110,7 @@ def main():
             print("       t: u_dev v_dev u_min residual | " + "; ".join(
                 f"{t:g}: {a:.4f} {b:.4f} {c:.4f} {d:.2g}" for t, a, b, c, d in zip(
                     ts["t"], ts["ghia_u_max_abs_dev"], ts["ghia_v_max_abs_dev"], ts["u_min_centerline"],
-                    ts["velocity_change_rate"], strict=True)), flush=True)
+                    ts.get("velocity_change_rate", [float("nan")] * len(ts["t"])), strict=True)), flush=True)
         col = next(colors)
         u_line, v_line = centerlines(r.particles, pb.params, pb.config, pb.scheme, line, line)
         a1.plot(u_line, line, "-", color=col, lw=1.1, label=f"Re={re:g}, {n}x{n}")

@@ -296,6 +296,12 @@ class Simulation:
         config = None if pb.config is None else json.loads(json.dumps(pb.config, default=str))
         steady = None
         wall_before = compile_before = 0.0
+
+        def residual_column(rate: float) -> dict:
+            """The steady-state residual as a column of the time series (``velocity_change_rate``:
+            0 at t = 0, nan between outputs) when the run has a steady-state test; its history is
+            in the checkpoint (vel_prev, t_prev), so a restarted series is the uninterrupted one."""
+            return {"velocity_change_rate": rate} if pb.steady_tol > 0 else {}
         restarted_from = None
         if restart:
             ck = self._resume_checkpoint(out, settings, config)
@@ -328,7 +334,7 @@ class Simulation:
             carry = initial_carry(p0)
             series = []
             if pb.diagnostics is not None:
-                series.append({"t": 0.0, **pb.diagnostics(pb.particles, 0.0, pb.params)})
+                series.append({"t": 0.0, **pb.diagnostics(pb.particles, 0.0, pb.params), **residual_column(0.0)})
             vel_prev, t_prev, first = _velocity(pb.particles), 0.0, 0
             geom_src = None if pb.scheme.moving else (np.asarray(pb.particles.x), np.asarray(pb.particles.vol))
 
@@ -444,20 +450,21 @@ class Simulation:
                         break
                     t = float(carry.t)
                     host = self._host(carry.particles)
-                    if pb.diagnostics is not None:
-                        series.append({"t": t, **pb.diagnostics(host, t, pb.params)})
-                    if (index + 1) % per_output:   # a sample time between two outputs: the series only
-                        continue
-                    snapshot()
-                    warn_fallback()
-                    done = False
-                    if pb.steady_tol > 0:
+                    at_output = not (index + 1) % per_output
+                    done, rate = False, float("nan")
+                    if at_output and pb.steady_tol > 0:
                         vel = _velocity(host)
                         scale = max(float(np.abs(vel).max()), 1e-300)
                         rate = float(np.abs(vel - vel_prev).max()) / scale / max(t - t_prev, 1e-300)
                         vel_prev, t_prev = vel, t
                         done = rate < pb.steady_tol
                         steady = {"converged": done, "t": t, "residual": rate, "tolerance": pb.steady_tol}
+                    if pb.diagnostics is not None:
+                        series.append({"t": t, **pb.diagnostics(host, t, pb.params), **residual_column(rate)})
+                    if not at_output:   # a sample time between two outputs: the series only
+                        continue
+                    snapshot()
+                    warn_fallback()
                     checkpoint(index + 1, "ok" if done or index + 1 == len(targets) else "running")
                     if done:
                         break

@@ -236,8 +236,33 @@ def test_a_steady_stopped_run_continues_with_a_tighter_tolerance(full, tmp_path)
     res = tight.run(tmp_path, snapshots=2, progress=False, restart=True)
     assert_same_state(res.particles, full.particles)
     assert res.summary["n_steps"] == full.summary["n_steps"] and res.summary["t_final"] == full.summary["t_final"]
-    assert res.summary["timeseries"] == full.summary["timeseries"]
+    ts = res.summary["timeseries"]       # plus the residual column of a run with a steady test
+    assert {k: ts[k] for k in full.summary["timeseries"]} == full.summary["timeseries"]
     assert not res.summary["steady_state"]["converged"]
+
+
+def test_the_steady_residual_series_restarts_bitwise(tmp_path):
+    """With a steady-state test the run records its residual as the series column
+    ``velocity_change_rate`` (0 at t = 0, then the value compared with the tolerance at every
+    output, nan at samples between outputs); its history is in the checkpoint, so a run stopped
+    by time.max_steps and restarted has the uninterrupted run's series, value for value (a
+    residual kept by a case's own diagnostics started again from zero after a restart)."""
+    _, pb = sod()
+    pb = dataclasses.replace(pb, diagnostics=_diagnostics, steady_tol=1e-30)
+    kw = {"snapshots": 2, "progress": False, "series_interval": 0.0125}
+    full = Simulation(pb, chunk=2).run(tmp_path / "full", **kw)
+    rate = full.summary["timeseries"]["velocity_change_rate"]
+    assert rate[0] == 0.0 and all(r > 0 for r in rate[1:] if r is not None and np.isfinite(r)), rate
+    assert sum(r is None or not np.isfinite(r) for r in rate) > 0     # samples between outputs
+    stopped = Simulation(pb, chunk=2)
+    stopped.max_steps = 7
+    with pytest.raises(SimulationError, match="time.max_steps=7"):
+        stopped.run(tmp_path / "part", **kw)
+    stopped.max_steps = 1_000_000
+    res = stopped.run(tmp_path / "part", restart=True, **kw)
+    np.testing.assert_array_equal(np.asarray(res.summary["timeseries"]["velocity_change_rate"], float),
+                                  np.asarray(rate, float))
+    assert_same_state(res.particles, full.particles)
 
 
 def test_a_checkpoint_from_before_series_interval_restarts(sim, full, tmp_path):
