@@ -443,7 +443,9 @@ CYLINDER_KEYS: dict[str, Key] = {
                            "body (either sense, the first point not repeated); D is the reference length of "
                            "case.re, C_D, C_L and Nu (a square cylinder of side D: [[-0.5, -0.5], [0.5, -0.5], "
                            "[0.5, 0.5], [-0.5, 0.5]]); the polygon's edges are cut into pieces no longer than "
-                           "its perimeter / case.n_theta"),
+                           "its perimeter / case.n_theta; choose case.lattice_ratio so that flat faces lie half a "
+                           "lattice spacing from a lattice row (the square: lattice_ratio = n_theta / (8 k)), a "
+                           "gap near 1.5 spacings spoils the wall pressure (docs/validation.md)"),
     "aspect": Key(float, 1.0, minimum=0.0, exclusive_minimum=True,
                   doc="ellipse only: aspect ratio a/b of the semi-axes along/across its chord, a = R sqrt(aspect), "
                       "b = R / sqrt(aspect) (R = case.radius; parameter geometry.body.aspect)"),
