@@ -74,7 +74,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="replace the run already in the output folder (its old files and plots are removed)")
     r.add_argument("--restart", metavar="DIR",
                    help="continue the interrupted or failed run in DIR from its last checkpoint (bit for bit as if "
-                        "it had not stopped); CONFIG is optional (default DIR/config.toml) and must match the run")
+                        "it had not stopped), or a run its steady-state test stopped, with --set case.steady_tol= a "
+                        "smaller value; CONFIG is optional (default DIR/config.toml) and must match the run")
     r.add_argument("--distributed", action="store_true",
                    help="join a multi-process run (jax.distributed.initialize) before anything else: the cluster "
                         "from the environment (SLURM, Open MPI), or from --coordinator, --num-processes and "

@@ -222,7 +222,7 @@ class Simulation:
 
     def _settings(self, snapshots: int, per_output: int = 1) -> dict:
         """Driver settings a restart must share with the run it continues (the numbers of the
-        steps depend on them; ``max_steps`` may change)."""
+        steps depend on them; :data:`~mlsph_jax.checkpoint.RESTART_MAY_CHANGE` may change)."""
         c = self.control
         return {"case": self.problem.case, "t_end": float(self.problem.t_end), "snapshots": int(snapshots),
                 **({"series_per_output": int(per_output)} if per_output > 1 else {}),
@@ -254,8 +254,10 @@ class Simulation:
         ``overwrite`` (its old outputs are removed first) or ``restart``: continue the run of
         ``out_dir`` from its ``checkpoint.h5`` (the last output time, interruption or failure),
         bit for bit as if it had not stopped; the problem and driver settings must be those of
-        that run (:class:`InputError` naming what differs; ``max_steps`` may change).  Snapshots
-        are appended to its ``fields.h5``.
+        that run (:class:`InputError` naming what differs; the settings of
+        :data:`~mlsph_jax.checkpoint.RESTART_MAY_CHANGE` may change, a steady-state tolerance only
+        to a smaller one, which also continues a run its steady-state test stopped).  Snapshots
+        are appended to its ``fields.h5`` and ``config.toml`` holds the settings it goes on with.
 
         SIGINT (Ctrl-C) or SIGTERM finish the current chunk, write the last good state (snapshot
         and checkpoint), ``summary.json`` with ``status = "interrupted"``, ``timeseries.csv`` and the
@@ -317,6 +319,10 @@ class Simulation:
                           fallback.initial_stats() if ck.fallback is None else jnp.asarray(ck.fallback))
             series, vel_prev, t_prev, first = list(ck.series), np.asarray(ck.vel_prev), ck.t_prev, ck.next_target
             steady = ck.steady
+            if ck.status == "ok":     # a steady-stopped run going on to a smaller tolerance
+                steady = {**ck.steady, "converged": False, "tolerance": pb.steady_tol}
+            if out is not None and pb.config is not None:
+                io.write_config(out, pb.config)     # the settings it goes on with (e.g. case.steady_tol)
             wall_before, compile_before = ck.wall_time_s, ck.compile_time_s
             restarted_from = {"t": float(ck.t), "step": int(ck.step), "status": ck.status}
             geom_src = ck.geom_source
@@ -548,11 +554,18 @@ class Simulation:
         if diffs:
             raise InputError(f"{where}: the run was made with other settings: " + "; ".join(diffs)
                              + f"; allowed: the run's own settings (only {', '.join(RESTART_MAY_CHANGE)} may change)")
+        saved = (ck.config or {}).get("case", {}).get("steady_tol")
+        now = self.problem.steady_tol
+        if saved is not None and float(saved) != now and not 0.0 < now < float(saved):
+            raise InputError(f"{where}: case.steady_tol={now:g}, the run's {float(saved):g}; allowed: a smaller "
+                             "positive tolerance (the run would have stopped at the same outputs or gone on; a "
+                             "larger one, or 0, could have stopped it earlier or drops its residual series), or "
+                             "the run's own")
         if ck.status == "ok" and not self._tighter_steady_stop(ck):
             more = ""
             if ck.steady and ck.steady.get("converged") and float(ck.t) < self.problem.t_end:
                 more = (f", or this steady-stopped run with a smaller steady-state tolerance (case.steady_tol < "
-                        f"{ck.steady['residual']:.3g}, its residual at the stop; now {self.problem.steady_tol:g})")
+                        f"{ck.steady['residual']:.6g}, its residual at the stop; now {self.problem.steady_tol:g})")
             raise InputError(f"{where}: the run is complete (t = {float(ck.t):.6g}, step {int(ck.step)}); allowed: "
                              f"an interrupted or failed run{more}")
         if int(ck.particles.n) != int(self.problem.particles.n):
@@ -760,7 +773,8 @@ def make_simulation(problem: Problem, cfg: Mapping | None = None) -> Simulation:
 
 
 def restart(out_dir, overrides=(), quiet: bool = False) -> Result:
-    """Continue the run of ``out_dir`` (interrupted or failed) from its checkpoint with the
+    """Continue the run of ``out_dir`` (interrupted, failed, or stopped by its steady-state test and
+    given a smaller ``case.steady_tol``) from its checkpoint with the
     configuration it saved (``out_dir/config.toml``; ``overrides`` may change only
     :data:`~mlsph_jax.checkpoint.RESTART_MAY_CHANGE`): the Python form of ``mlsph run --restart
     DIR``.  The final state is bit for bit that of the uninterrupted run."""

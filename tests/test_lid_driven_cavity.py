@@ -496,7 +496,7 @@ def test_re400_at_100x100_meets_the_issue_14_target():
     """Issue 14: the thesis' 100 x 100 at Re = 400, max |u - Ghia| <= 0.01 and max |v - Ghia| <= 0.02.
     Measured (docs/validation.md "Re = 400 at 100 x 100", 2026-12-05): at the config's 2e-3 steady
     stop (t = 22) 0.0104 / 0.0074, u still falling; at 5e-4 (t = 27, 49,476 steps) 0.0065 / 0.0039.
-    About 2-3 h alone on 2 cores (1,832 steps per time unit)."""
+    About 1.5-2 h alone on 2 cores (1,832 steps per time unit, ~3-4 min each)."""
     cfg = config.load(CFG, [*QUIET, "case.n=100", "case.re=400", "time.t_end=40", "output.snapshots=40",
                             "case.steady_tol=5e-4"])
     r = run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True)

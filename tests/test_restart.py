@@ -241,6 +241,30 @@ def test_a_steady_stopped_run_continues_with_a_tighter_tolerance(full, tmp_path)
     assert not res.summary["steady_state"]["converged"]
 
 
+def test_a_cavity_goes_on_to_a_tighter_steady_tolerance_and_keeps_it(tmp_path):
+    """The coarse cavity (12 x 12) stopped by case.steady_tol = 2e-2 continues through the command
+    line with 1e-2: config.toml then holds 1e-2 (a later plain --restart keeps it) and the run
+    stops later, its residual column continued; a larger tolerance or 0 is refused naming the
+    key (either could have stopped the run earlier)."""
+    over = ["case.n=12", "time.t_end=10", "output.snapshots=20", "time.cfl=0.6", "output.progress=false",
+            "output.plots=false"]
+    cfg = config.load(ROOT / "configs/lid_driven_cavity.toml", [*over, "case.steady_tol=2e-2"])
+    out = tmp_path / "cav"
+    first = run_problem(build_problem(cfg), cfg, out_dir=out, quiet=True).summary
+    assert first["steady_state"]["converged"] and first["t_final"] < 10.0
+    for bad in ("0.05", "0"):
+        with pytest.raises(InputError, match=rf"case.steady_tol={float(bad):g}, the run's 0.02; allowed: a smaller"):
+            restart(out, [f"case.steady_tol={bad}"])
+    res = restart(out, ["case.steady_tol=1e-2"]).summary
+    assert config.load(out / "config.toml")["case"]["steady_tol"] == 1e-2
+    st = res["steady_state"]
+    assert res["t_final"] > first["t_final"] and st["tolerance"] == 1e-2
+    rate = res["timeseries"]["velocity_change_rate"]
+    assert len(rate) == len(res["timeseries"]["t"]) and rate[:len(first["timeseries"]["t"])] == \
+        first["timeseries"]["velocity_change_rate"]
+    assert all(r >= 1e-2 for r in rate[1:-1]) and (rate[-1] < 1e-2) == st["converged"]
+
+
 def test_the_steady_residual_series_restarts_bitwise(tmp_path):
     """With a steady-state test the run records its residual as the series column
     ``velocity_change_rate`` (0 at t = 0, then the value compared with the tolerance at every
