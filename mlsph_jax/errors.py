@@ -64,6 +64,12 @@ class DegreeFallbackWarning(UserWarning):
     :mod:`mlsph_jax.fallback`).  The message names the fraction, the threshold and the key."""
 
 
+class LayoutWarning(UserWarning):
+    """A particle layout that builds but is known to spoil results (e.g. a lattice whose first row
+    lies far from a body's wall over a stretch of it); the message names the keys, the measured
+    value and what to change."""
+
+
 def invalid(argument: str, value, allowed: str) -> InputError:
     """Build the standard bad-argument error: names the argument, the value and what is allowed."""
     return InputError(f"invalid {argument}={value!r}; allowed: {allowed}")

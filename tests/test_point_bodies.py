@@ -8,6 +8,7 @@ the key."""
 from __future__ import annotations
 
 import math
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -84,6 +85,20 @@ def test_faces_on_half_lattice_lines_keep_their_first_row():
         near = x[across, axis]
         assert np.isclose(near[near < 0].max(), -0.5 - 0.5 * h, rtol=0, atol=1e-12)
         assert np.isclose(near[near > 0].min(), 0.5 + 0.5 * h, rtol=0, atol=1e-12)
+
+
+def test_a_lattice_far_from_a_flat_face_warns():
+    """The square at 48 points and lattice_ratio 1.176 has its faces 1.40 h from their first rows
+    (the run builds, but its wall pressures are wrong: docs/validation.md): a LayoutWarning naming
+    the keys and the gap; at lattice_ratio 1 (faces h/2 from a row) none."""
+    from mlsph_jax.errors import LayoutWarning
+
+    with pytest.warns(LayoutWarning, match=r"case.n_theta=48 and case.lattice_ratio=1.176: the first lattice row "
+                                           r"lies 1.4\d spacings from the body"):
+        build_problem(_square("case.n_theta=48", "case.lattice_ratio=1.176", "case.r_far=2.0"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", LayoutWarning)
+        build_problem(_square("case.n_theta=48", "case.lattice_ratio=1.0", "case.r_far=2.0"))
 
 
 def test_force_on_a_square_at_rest_is_the_buoyancy():
