@@ -375,7 +375,7 @@ def shape_outline(case: Mapping, fine: int = FINE) -> np.ndarray:
     return np.asarray(fine_curve.points(curve_params([curve]))[0], float)
 
 
-def _extent(case: Mapping) -> float:
+def body_extent(case: Mapping) -> float:
     """Largest distance of the body's curve from its centre (an ellipse: its semi-major axis; a
     body given by points: from the origin)."""
     if case["body"] in POINT_BODIES:
@@ -441,7 +441,7 @@ def _lattice_count(case: Mapping, h: float, r_in: float, support: Callable[[floa
 
 
 def _far_problems(case, h, support) -> list[str]:
-    need = _extent(case) + GAP * h + support(h) + h
+    need = body_extent(case) + GAP * h + support(h) + h
     if case["r_far"] <= need:
         return [f"invalid case.r_far={case['r_far']!r} with case.layout={case['layout']!r} (lattice spacing "
                 f"{h:.4g}): the far field starts inside the support of the body's wall points (out to r = "
@@ -524,7 +524,7 @@ class Blend:
     @staticmethod
     def check(case: Mapping, support: Callable[[float], float]) -> list[str]:
         rb, R, n = case["blend_radius"], case["radius"], case["n_theta"]
-        inner = _extent(case) * (1.0 + 2.0 * math.pi / n) ** 2
+        inner = body_extent(case) * (1.0 + 2.0 * math.pi / n) ** 2
         if rb <= inner:
             return [f"invalid case.blend_radius={rb!r} with case.radius={R!r} and case.n_theta={n}: at or inside "
                     f"the body's first two rings (r = {inner:.4g}); allowed: case.blend_radius > {inner:.4g}"]

@@ -183,6 +183,7 @@ from .base import register_case
 from .body_layouts import (
     BODY_LAYOUTS,
     POINT_BODIES,
+    body_extent,
     body_polygon,
     check_outside,
     distance_to_polygon,
@@ -293,7 +294,6 @@ def check_cylinder(cfg: dict) -> None:
                         "case.body = \"ellipse\" (or aspect 1 and alpha 0)")
     if c["perturbation"] > 0.0:
         D, core, xv = 2.0 * c["radius"], c["perturbation_core"], c["perturbation_x"]
-        # the body's largest half-extent in units of D (an ellipse: its semi-major axis)
         room = None
         if c["body"] in POINT_BODIES:     # the room between the vortex centre and the outline, in D
             poly = shape_outline(c)
@@ -305,7 +305,7 @@ def check_cylinder(cfg: dict) -> None:
                                 f"centre is {room:.4g} D from the outline{', inside it' if room == 0.0 else ''}); "
                                 f"allowed: 2 case.perturbation_core <= the distance from (case.perturbation_x D, 0) "
                                 "to the outline, the centre outside the body")
-        half = body_extent(c) / D
+        half = body_extent(c) / D        # the largest half-extent in D (an ellipse: its semi-major axis)
         if room is None and xv - 2.0 * core < half:   # its shield too: cut by the body it would leave circulation
             problems.append(f"invalid case.perturbation_x={show(xv)} with case.perturbation_core={show(core)}: the "
                             f"trigger vortex (core and shield, two core radii) reaches into the body (x / D < "
@@ -329,15 +329,6 @@ def check_cylinder(cfg: dict) -> None:
                             "allowed: rho_inf |f| 2 r_far / p_inf <= 50")
     if problems:
         raise ConfigError(join_problems(problems))
-
-
-def body_extent(case: Mapping) -> float:
-    """The largest distance of the body's curve from its centre, the origin (R for the circle, the
-    semi-major axis of an ellipse, from the outline of a body given by points)."""
-    if case["body"] in POINT_BODIES:
-        return float(np.max(np.hypot(*shape_outline(case).T)))
-    return case["radius"] * (math.sqrt(max(case["aspect"], 1.0 / case["aspect"])) if case["body"] == "ellipse"
-                             else 1.0)
 
 
 def _body_problems(c: Mapping) -> list[str]:
