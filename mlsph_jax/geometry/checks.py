@@ -90,13 +90,17 @@ def _edges(poly, closed):
     return a, b
 
 
+def _orientations(a1, b1, a2, b2):
+    """The four orientation products [M1, M2] of the segment pairs (a1, b1), (a2, b2): the sides
+    of a2 and b2 seen along segment 1, and of a1 and b1 along segment 2."""
+    d1, d2 = b1 - a1, b2 - a2
+    return (cross2(d1[:, None], a2[None] - a1[:, None]), cross2(d1[:, None], b2[None] - a1[:, None]),
+            cross2(d2[None], a1[:, None] - a2[None]), cross2(d2[None], b1[:, None] - a2[None]))
+
+
 def _crossings(a1, b1, a2, b2):
     """Proper crossings [M1, M2] of the segments (a1, b1) and (a2, b2) (touching is not one)."""
-    d1, d2 = b1 - a1, b2 - a2
-    o1 = cross2(d1[:, None], a2[None] - a1[:, None])
-    o2 = cross2(d1[:, None], b2[None] - a1[:, None])
-    o3 = cross2(d2[None], a1[:, None] - a2[None])
-    o4 = cross2(d2[None], b1[:, None] - a2[None])
+    o1, o2, o3, o4 = _orientations(a1, b1, a2, b2)
     return (o1 * o2 < 0) & (o3 * o4 < 0)
 
 
@@ -162,10 +166,7 @@ def self_crossing(poly: np.ndarray, touching: bool = False) -> tuple[int, int] |
 def _touches(a, b):
     """[M, M]: whether the closed segments (a_i, b_i) and (a_j, b_j) share any point."""
     d = b - a
-    o1 = cross2(d[:, None], a[None] - a[:, None])
-    o2 = cross2(d[:, None], b[None] - a[:, None])
-    o3 = cross2(d[None], a[:, None] - a[None])
-    o4 = cross2(d[None], b[:, None] - a[None])
+    o1, o2, o3, o4 = _orientations(a, b, a, b)
     scale = 1e-12 * np.max(np.sum(d * d, axis=1))
     z1, z2, z3, z4 = (np.abs(o) <= scale for o in (o1, o2, o3, o4))
     proper = (o1 * o2 < 0) & (o3 * o4 < 0)
