@@ -141,7 +141,7 @@ def test_shape_derivative_refused_on_a_lattice_but_not_the_stream_angle():
 # --- bad input --------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("overrides, words", [
-    (("case.layout=\"hexagonal\"",), ["case.layout", "hexagonal", "blend", "cartesian", "polar"]),
+    (("case.layout=\"hexagonal\"",), ["case.layout", "hexagonal", "blend", "cartesian", "offset", "polar"]),
     (("case.layout=\"cartesian\"", "case.lattice_ratio=2.0"),
      ["case.lattice_ratio=2", "16 lattice spacings", "too coarse", "lattice_ratio <= 1.6"]),
     (("case.layout=\"blend\"", "case.blend_radius=0.6"),
@@ -149,7 +149,8 @@ def test_shape_derivative_refused_on_a_lattice_but_not_the_stream_angle():
     (("case.layout=\"blend\"", "case.blend_radius=2.9"), ["case.blend_radius=2.9", "outside the far field",
                                                          "allowed: case.blend_radius <"]),
     (("case.layout=\"cartesian\"", "case.r_far=0.9"), ["case.r_far=0.9", "support of the body's wall points"]),
-    (("case.lattice_ratio=1.2",), ["case.lattice_ratio=1.2", "case.layout=\"polar\"", "\"cartesian\" only"]),
+    (("case.lattice_ratio=1.2",),
+     ["case.lattice_ratio=1.2", "case.layout=\"polar\"", "\"cartesian\" / \"offset\" only"]),
     (("case.layout=\"cartesian\"", "case.blend_radius=1.0"), ["case.blend_radius=1", "\"blend\" only"]),
 ])
 def test_bad_layouts_name_the_key(overrides, words):

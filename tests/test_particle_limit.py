@@ -92,6 +92,9 @@ def test_estimates_bound_the_built_counts(path, overrides):
     ["case.layout=\"cartesian\"", "case.lattice_ratio=1.5"],
     ["case.layout=\"cartesian\"", "case.lattice_ratio=1.5", "case.body=\"polygon\"",
      "case.body_points=[[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]]"],
+    ["case.layout=\"offset\"", "case.lattice_ratio=1.5"],
+    ["case.layout=\"offset\"", "case.lattice_ratio=1.1", "case.body=\"polygon\"",
+     "case.body_points=[[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]]"],
     ["case.layout=\"blend\"", "case.blend_radius=1.5"],
     ["case.layout=\"blend\"", "case.blend_radius=1.5", "case.body=\"ellipse\"", "case.aspect=2.0"],
 ])

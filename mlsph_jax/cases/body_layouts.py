@@ -16,6 +16,17 @@
   the same square lattice beyond, with h the particle spacing sqrt(V) of the outermost ring (so
   the ring spacing matches the lattice spacing at the blend radius); lattice points inside the
   outer ring's edge or closer than :data:`GAP` h to a ring particle are removed.
+* ``"offset"`` (decision 105): ``case.offset_rows`` rows of particles along the body's offset
+  curves, row m on the level set (m + 1/2) h of the distance to the body (its polygon of
+  :data:`FINE` x ``n_theta`` vertices, or a polygon body's own vertices), ``round(length / h)``
+  particles per row equally spaced by arc length from the row's front crossing of the x axis;
+  beyond them the ``cartesian`` lattice of the same h, its points kept where they are at least
+  ``offset_rows`` h from the body and :data:`GAP` h from every row particle.  The first row lies
+  h/2 from the wall all along any body (straight faces, corners, a spline's curvature), where
+  the lattice's cut-out leaves h/2 to 3h/2.  The level sets come from the distance field on a
+  grid of h / :data:`OFFSET_GRID` (:func:`offset_rows`; matplotlib's contouring, contourpy), so
+  convex corners get arcs and rows closed off in a concave pocket are kept; rows crowding into
+  a concave corner are thinned to :data:`GAP` h.  For a body given by points or any other.
 * ``"graded"`` (decision 90): the polar rings with the ring particles of the near wake replaced by
   a point cloud whose spacing grades smoothly.  Target spacing h_w(x) = D (``wake_spacing`` +
   ``wake_grading`` d / D), d the distance from the wake-axis segment x in [R, ``wake_length`` D],
@@ -32,7 +43,7 @@
   ``tried/wake-strip-layout``, decision 86).  Voronoi volumes clipped to the body for the fluid,
   sector areas for the polar frozen rings; circle only; no shape derivatives (as the lattices).
 
-Lattice layouts: beyond ``r_far`` the lattice continues as FROZEN far-field particles
+Lattice layouts (cartesian, blend, offset): beyond ``r_far`` the lattice continues as FROZEN far-field particles
 (:class:`~mlsph_jax.state.Kind`) out to the support radius of the outermost fluid particle plus
 one spacing (as the polar layout's frozen rings).  Volumes are consistent with the layout: the
 Voronoi cell of each fluid particle among all particles (:class:`scipy.spatial.Voronoi`),
@@ -66,6 +77,7 @@ import warnings
 from collections.abc import Callable, Mapping
 from typing import NamedTuple
 
+import contourpy
 import jax
 import numpy as np
 from scipy.spatial import Voronoi, cKDTree
@@ -93,6 +105,8 @@ MIN_SPACINGS_AROUND = 20
 SHAPE_FIELDS = ("centre", "radius", "aspect", "vertices", "knots")
 #: ``case.body`` values given by points (``case.body_points``), not by a formula; lattice layouts only.
 POINT_BODIES = ("polygon", "spline")
+#: The layouts that fit any closed curve (the lattices), hence a body given by points.
+POINT_LAYOUTS = ("cartesian", "offset")
 
 #: Layouts around a body (the ``cylinder`` case's ``case.layout``; the kind is a label, since other
 #: cases' ``case.layout`` keys name their own, unregistered, layouts).
@@ -311,9 +325,10 @@ def _finish(fluid, frozen, h, body, params, what, case_value):
     worst = spacing_ratio(body, params, fluid, vf)
     if worst > 1.0 + 1e-9:
         # sqrt(V) next to the body scales with the lattice spacing (cartesian) or with 1 / n_theta (blend)
-        allowed = (f"case.lattice_ratio >= {case_value * worst:.4g}" if what == "cartesian" else
+        lattice = what in ("cartesian", "offset")
+        allowed = (f"case.lattice_ratio >= {case_value * worst:.4g}" if lattice else
                    "a larger case.n_theta or case.layout=\"polar\"")
-        key = "case.lattice_ratio" if what == "cartesian" else "case.n_theta"
+        key = "case.lattice_ratio" if lattice else "case.n_theta"
         raise InputError(f"invalid {key}={case_value!r} with case.layout={what!r} (case.n_theta={body.n_points}): "
                          f"the body's quadrature pieces are up to {worst:.3g} spacings sqrt(V) of the nearest "
                          f"particle long, too sparse for the particles (geometry.checks.spacing_ratio); allowed: at "
@@ -321,6 +336,19 @@ def _finish(fluid, frozen, h, body, params, what, case_value):
     vol = np.concatenate([vf, np.full(len(frozen), h * h)])
     kind = np.concatenate([np.full(len(fluid), int(Kind.FLUID)), np.full(len(frozen), int(Kind.FROZEN))])
     return pts, vol, kind
+
+
+def _around(inner, cand, keep, pts, h, reach, body, params, case, layout: str) -> BodyLayout:
+    """A lattice layout of ``inner`` particles next to the body (the blend's rings, the offset
+    rows) and the lattice candidates ``cand[keep]`` at least :data:`GAP` h from them (a point
+    exactly GAP h away is kept, not dropped by round-off), the frozen lattice beyond ``r_far``."""
+    d, _ = cKDTree(inner).query(cand[keep])
+    keep = keep.copy()
+    keep[np.flatnonzero(keep)[d < GAP * h * (1.0 - 1e-9)]] = False
+    fluid = np.concatenate([inner, cand[keep]])
+    x, vol, kind = _finish(fluid, _frozen_lattice(pts, case["r_far"], reach), h, body, params, layout,
+                           case["n_theta"] if layout == "blend" else case["lattice_ratio"])
+    return BodyLayout(x, vol, kind, h, _fixed_positions(x, vol, body, layout, params))
 
 
 class Polar:
@@ -474,8 +502,9 @@ def _warn_wall_gap(case: Mapping, body, params, fluid_x: np.ndarray, h: float) -
         f"case.layout=\"cartesian\" with case.n_theta={case['n_theta']} and case.lattice_ratio="
         f"{show(case['lattice_ratio'])}: the first lattice row lies {gap[k]:.2f} spacings from the body on average "
         f"near {where} (in units of D; above {WALL_GAP_WARN:g}), and the wall pressure extrapolates across that gap "
-        "(docs/validation.md, \"Bodies given by points\"); choose case.lattice_ratio so that flat faces lie half a "
-        "spacing from a lattice row, or a finer lattice (n_theta / lattice_ratio >= 48)"), stacklevel=3)
+        "(docs/validation.md, \"Bodies given by points\"); use case.layout=\"offset\" (rows along the body, the first "
+        "half a spacing from it everywhere), or choose case.lattice_ratio so that flat faces lie half a spacing from "
+        "a lattice row, or a finer lattice (n_theta / lattice_ratio >= 48)"), stacklevel=3)
 
 
 class Cartesian:
@@ -548,13 +577,7 @@ class Blend:
         # the outer edge of the rings (the mapped circle at the last edge) as a polygon
         ring_edge = _mapped_circle(edges[-1], edges[0], FINE * n_theta, params[body.key("centre")],
                                    np.asarray(semi_axes, float), float(angle))
-        keep = ~inside_polygon(cand, ring_edge)
-        d, _ = cKDTree(x_r).query(cand[keep])
-        keep[np.flatnonzero(keep)[d < GAP * h]] = False
-        fluid = np.concatenate([x_r, cand[keep]])
-        x, vol, kind = _finish(fluid, _frozen_lattice(pts, r_far, reach), h, body, params, "blend",
-                                case["n_theta"])
-        return BodyLayout(x, vol, kind, h, _fixed_positions(x, vol, body, "blend", params))
+        return _around(x_r, cand, ~inside_polygon(cand, ring_edge), pts, h, reach, body, params, case, "blend")
 
     @staticmethod
     def count(case: Mapping, support: Callable[[float], float]) -> tuple[int, tuple[str, ...]]:
@@ -582,6 +605,146 @@ def _mapped_circle(r, r0, n, centre, semi_axes, angle):
 BODY_LAYOUTS.register("polar", Polar())
 BODY_LAYOUTS.register("cartesian", Cartesian())
 BODY_LAYOUTS.register("blend", Blend())
+
+
+# --- the offset layout: rows along the body's offset curves, the lattice beyond (decision 105) --
+
+#: ``offset``: the distance field whose level sets give the rows is sampled on a square grid of
+#: OFFSET_GRID points per lattice spacing (a row point lies within ~(h / OFFSET_GRID)^2 curvature
+#: of its offset distance; exact on straight faces).
+OFFSET_GRID = 16
+
+
+def _distance_field(poly: np.ndarray, h: float, reach: float):
+    """The signed distance to the closed polygon ``poly`` (negative inside) on a square grid of
+    spacing h / :data:`OFFSET_GRID` over the body's bounding box widened by ``reach``, centred on
+    the origin's grid lines (so that a body symmetric about y = 0 gets a symmetric field): ``(gx,
+    gy, Z)``.  The distance is exact: the nearest of the edges' dense samples (spacing <= the grid
+    step) picks the edge, and the distances to it and to its two neighbours are taken."""
+    step = h / OFFSET_GRID
+    lo, hi = poly.min(axis=0) - reach, poly.max(axis=0) + reach
+    axes = [step * np.arange(math.floor(lo[k] / step), math.ceil(hi[k] / step) + 1) for k in range(2)]
+    X, Y = np.meshgrid(*axes, indexing="xy")
+    g = np.stack([X.ravel(), Y.ravel()], axis=1)
+    a, b = poly, np.roll(poly, -1, axis=0)
+    pieces = np.maximum(1, np.ceil(np.linalg.norm(b - a, axis=1) / step).astype(int))
+    edge = np.repeat(np.arange(len(poly)), pieces)
+    t = np.concatenate([np.arange(n) / n for n in pieces])
+    _, near = cKDTree(a[edge] + t[:, None] * (b - a)[edge]).query(g)
+    dist = np.full(len(g), np.inf)
+    for shift in (-1, 0, 1):                 # the nearest sample's edge and its two neighbours
+        e = (edge[near] + shift) % len(poly)
+        d = b[e] - a[e]
+        s = np.clip(np.sum((g - a[e]) * d, axis=1) / np.sum(d * d, axis=1), 0.0, 1.0)
+        dist = np.minimum(dist, np.hypot(*(g - a[e] - s[:, None] * d).T))
+    inside = np.zeros(len(g), bool)
+    for k in range(0, len(g), 4096):         # set-up only; chunks bound the even-odd test's memory
+        inside[k:k + 4096] = inside_polygon(g[k:k + 4096], poly)
+    return axes[0], axes[1], np.where(inside, -dist, dist).reshape(X.shape)
+
+
+def _loop_from_front(loop: np.ndarray) -> np.ndarray:
+    """A closed polyline (first point repeated at the end) turned counter-clockwise and started at
+    its front crossing of the x axis (the crossing of least x), or at its point of least x when it
+    does not cross the axis: a loop symmetric about y = 0 is then sampled symmetrically."""
+    pts = loop[:-1]
+    if polygon_area(pts) < 0.0:
+        pts = pts[::-1]
+    nxt = np.roll(pts, -1, axis=0)
+    cross = (pts[:, 1] <= 0.0) & (nxt[:, 1] > 0.0) | (pts[:, 1] > 0.0) & (nxt[:, 1] <= 0.0)
+    if not cross.any():
+        k = int(np.argmin(pts[:, 0]))
+        return np.concatenate([pts[k:], pts[:k + 1]])
+    s = pts[:, 1] / np.where(cross, pts[:, 1] - nxt[:, 1], 1.0)
+    xc = np.where(cross, pts[:, 0] + s * (nxt[:, 0] - pts[:, 0]), np.inf)
+    k = int(np.argmin(xc))
+    start = np.array([xc[k], 0.0])
+    return np.concatenate([start[None], pts[k + 1:], pts[:k + 1], start[None]])
+
+
+def _resample(loop: np.ndarray, h: float) -> np.ndarray:
+    """``round(L / h)`` (at least 1) points equally spaced by arc length along the closed polyline
+    ``loop`` (first point repeated at the end), the first at its start."""
+    seg = np.linalg.norm(np.diff(loop, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    n = max(1, round(s[-1] / h))
+    q = s[-1] * np.arange(n) / n
+    return np.stack([np.interp(q, s, loop[:, 0]), np.interp(q, s, loop[:, 1])], axis=1)
+
+
+def _thin(points: np.ndarray, h: float) -> np.ndarray:
+    """``points`` less those closer than :data:`GAP` h to an earlier one (rows crowd where they turn
+    into a concave corner of the body)."""
+    pairs = cKDTree(points).query_pairs(GAP * h * (1.0 - 1e-9), output_type="ndarray")
+    if len(pairs) == 0:
+        return points
+    drop = np.zeros(len(points), bool)
+    for i, j in sorted(map(tuple, np.sort(pairs, axis=1))):     # the few crowded pairs, in order
+        if not drop[i]:
+            drop[j] = True
+    return points[~drop]
+
+
+def offset_rows(poly: np.ndarray, h: float, rows: int) -> np.ndarray:
+    """The particles of the ``offset`` layout's rows: row m = 0 .. ``rows`` - 1 lies on the level
+    set (m + 1/2) h of the distance to the body polygon ``poly`` (each of its closed loops: the
+    outer one and any closed off in a concave pocket), ``round(length / h)`` points per loop equally
+    spaced by arc length from the loop's front crossing of the x axis; points closer than
+    :data:`GAP` h to an earlier one are dropped."""
+    gx, gy, Z = _distance_field(poly, h, (rows + 1) * h)
+    gen = contourpy.contour_generator(gx, gy, Z, line_type="Separate")
+    out = []
+    for m in range(rows):
+        for loop in gen.lines((m + 0.5) * h):
+            out.append(_resample(_loop_from_front(np.asarray(loop, float)), h))
+    return _thin(np.concatenate(out), h)
+
+
+def offset_count(case: Mapping, support: Callable[[float], float]) -> int:
+    """The ``offset`` layout's particle count from the config: its rows and lattice hold one
+    particle per h^2 as the cartesian lattice does (the lattice's count)."""
+    return _lattice_count(case, lattice_spacing(case), body_area_radius(case), support)
+
+
+class Offset:
+    """``case.offset_rows`` rows along the body's offset curves at (m + 1/2) h, the square lattice of
+    spacing h beyond (module docstring), Voronoi volumes: the first row lies h/2 from the wall all
+    along any body, a lattice's cut-out leaves h/2 to 3h/2."""
+
+    @staticmethod
+    def check(case: Mapping, support: Callable[[float], float]) -> list[str]:
+        problems = Cartesian.check(case, support)
+        if problems:
+            return problems
+        h, rows = lattice_spacing(case), case["offset_rows"]
+        need = body_extent(case) + (rows + GAP) * h + support(h) + h
+        if case["r_far"] <= need:
+            return [f"invalid case.offset_rows={rows} with case.r_far={show(case['r_far'])} (lattice spacing "
+                    f"{h:.4g}): the rows reach into the support of the far field (out to r = {need:.4g}); allowed: "
+                    f"case.r_far > {need:.4g} or fewer rows"]
+        return []
+
+    @staticmethod
+    def build(case: Mapping, body, params, support, names) -> BodyLayout:
+        h = case["lattice_ratio"] * _perimeter(body, params) / case["n_theta"]
+        rows, r_far, reach = case["offset_rows"], case["r_far"], support(h) + h
+        poly = body_polygon(body, params)
+        x_r = offset_rows(poly, h, rows)
+        pts = square_lattice(h, r_far + reach)
+        cand = pts[np.hypot(pts[:, 0], pts[:, 1]) < r_far]
+        near = np.hypot(cand[:, 0], cand[:, 1]) < _body_extent(body, params) + (rows + 2.0) * h
+        keep = np.ones(len(cand), bool)
+        keep[near] = ~inside_polygon(cand[near], poly)
+        keep[near] &= distance_to_polygon(cand[near], poly) >= rows * h
+        return _around(x_r, cand, keep, pts, h, reach, body, params, case, "offset")
+
+    @staticmethod
+    def count(case: Mapping, support: Callable[[float], float]) -> tuple[int, tuple[str, ...]]:
+        return (offset_count(case, support),
+                ("case.layout", "case.r_far", "case.lattice_ratio", "case.n_theta", "case.radius"))
+
+
+BODY_LAYOUTS.register("offset", Offset())
 
 
 # --- the graded wake layout (decision 90) ------------------------------------------------------

@@ -18,7 +18,9 @@ particles, and they do not follow the body's shape parameters (shape derivatives
 layout).  ``"graded"`` (decision 90): the polar rings with the near wake's ring particles replaced
 by a relaxed point cloud whose spacing grows linearly, by ``wake_grading``, with the distance from
 the wake axis between the body and ``wake_length`` D, where it is ``wake_spacing`` D (smooth
-grading keeps the neighbour rows near the polar layout's).  The body's quadrature keeps
+grading keeps the neighbour rows near the polar layout's).  ``"offset"`` (decision 105):
+``offset_rows`` rows along the body's offset curves at distances (m + 1/2) h, the cartesian
+lattice beyond, so that the first row lies h/2 from the wall of any body.  The body's quadrature keeps
 ``n_theta`` points on every layout.
 
 Body.  No-slip wall by the boundary integral of thesis eq. 4.24, adiabatic (thesis) or isothermal
@@ -52,7 +54,8 @@ no longer than its perimeter / ``n_theta``, midpoint rule) or the periodic cubic
 (:class:`~mlsph_jax.geometry.Spline`, ``n_theta`` points); the points are in units of the reference
 length D = 2 ``radius`` about the body's centre, the origin, so ``radius`` scales the shape and D
 stays the length of Re, C_D, C_L and Nu (a square of side D: corners at +-0.5).  Only the
-``cartesian`` layout fits an arbitrary curve; ``alpha`` turns the stream as for the ellipse, the
+``cartesian`` and ``offset`` layouts fit an arbitrary curve (``offset`` keeps the first row h/2
+from every face); ``alpha`` turns the stream as for the ellipse, the
 aspect ratio must stay 1.  C_p(theta) and the front / base values use the angle about the origin
 (a star-shaped body about its centre reads naturally); the recirculation length starts at the
 body's rearmost crossing of the wake axis y = 0 (none at incidence or for a body off the axis).
@@ -183,6 +186,7 @@ from .base import register_case
 from .body_layouts import (
     BODY_LAYOUTS,
     POINT_BODIES,
+    POINT_LAYOUTS,
     body_extent,
     body_polygon,
     check_outside,
@@ -341,10 +345,11 @@ def _body_problems(c: Mapping) -> list[str]:
                     f"case.body_points = [] or case.body = {show(POINT_BODIES[0])}"]
         return []
     problems = []
-    if c["layout"] != "cartesian":
+    if c["layout"] not in POINT_LAYOUTS:
         problems.append(f"invalid case.layout={show(c['layout'])} with case.body={show(c['body'])}: the polar "
                         "rings (and the blend and graded layouts built on them) are fitted to a circle or an "
-                        "ellipse; allowed: case.layout = \"cartesian\" (a lattice with the body cut out)")
+                        "ellipse; allowed: case.layout = \"cartesian\" (a lattice with the body cut out) or "
+                        "\"offset\" (rows along the body's offset curves, the lattice beyond)")
     if c["aspect"] != 1.0:
         problems.append(f"invalid case.aspect={show(c['aspect'])} with case.body={show(c['body'])}: the points give "
                         "the shape; allowed: case.aspect = 1 (scale the points instead)")
@@ -372,7 +377,8 @@ def layout_problems(cfg: Mapping) -> list[str]:
     """The layout's own checks (:data:`~mlsph_jax.cases.body_layouts.BODY_LAYOUTS`), and no
     lattice key set for a layout that does not use it (nothing silently ignored)."""
     c = cfg["case"]
-    used = {"lattice_ratio": ("cartesian",), "blend_radius": ("blend",), "wake_spacing": ("graded",),
+    used = {"lattice_ratio": POINT_LAYOUTS, "offset_rows": ("offset",), "blend_radius": ("blend",),
+            "wake_spacing": ("graded",),
             "wake_length": ("graded",), "wake_grading": ("graded",)}
     problems = [f"invalid case.{k}={show(c[k])} with case.layout={show(c['layout'])}: it is used by case.layout="
                 f"{' / '.join(map(show, lays))} only; allowed: the default {show(CYLINDER_KEYS[k].default)} or "
@@ -403,12 +409,18 @@ CYLINDER_KEYS: dict[str, Key] = {
                       "case.lattice_ratio x perimeter / case.n_theta with the body cut out; \"blend\" the polar "
                       "rings out to case.blend_radius and the lattice of the last ring's spacing beyond; \"graded\" "
                       "the polar rings with a wake cloud graded from case.wake_spacing on the wake axis (decision 90); "
-                      "lattice and cloud "
+                      "\"offset\" case.offset_rows rows along the body's offset curves at (m + 1/2) h, the cartesian "
+                      "lattice beyond (decision 105; the first row h/2 from any body); lattice and cloud "
                       "volumes are Voronoi cells clipped to the fluid; shape derivatives need \"polar\""),
     "lattice_ratio": Key(float, 1.0, minimum=0.0, exclusive_minimum=True,
-                         doc="case.layout = \"cartesian\" only: lattice spacing h over the body's quadrature "
-                             "spacing (perimeter / case.n_theta); n_theta / lattice_ratio >= 20 spacings around the "
-                             "body, and the quadrature may not be sparser than the particles next to the body"),
+                         doc="case.layout = \"cartesian\" / \"offset\" only: lattice spacing h over the body's "
+                             "quadrature spacing (perimeter / case.n_theta); n_theta / lattice_ratio >= 20 spacings "
+                             "around the body, and the quadrature may not be sparser than the particles next to the "
+                             "body"),
+    "offset_rows": Key(int, 3, minimum=1,
+                       doc="case.layout = \"offset\" only: rows of particles along the body's offset curves at "
+                           "distances (m + 1/2) h, m = 0 .. offset_rows - 1, spaced h along each (decision 105); the "
+                           "lattice of spacing h starts offset_rows h from the body"),
     "blend_radius": Key(float, 2.0, minimum=0.0, exclusive_minimum=True, unit="m",
                         doc="case.layout = \"blend\" only: outer radius of the polar rings (the lattice beyond has "
                             "the last ring's spacing sqrt(V)); between the body's second ring and case.r_far less "
@@ -434,9 +446,10 @@ CYLINDER_KEYS: dict[str, Key] = {
                            "body (either sense, the first point not repeated); D is the reference length of "
                            "case.re, C_D, C_L and Nu (a square cylinder of side D: [[-0.5, -0.5], [0.5, -0.5], "
                            "[0.5, 0.5], [-0.5, 0.5]]); the polygon's edges are cut into pieces no longer than "
-                           "its perimeter / case.n_theta; choose case.lattice_ratio so that flat faces lie half a "
-                           "lattice spacing from a lattice row (the square: lattice_ratio = n_theta / (8 k)), a "
-                           "gap near 1.5 spacings spoils the wall pressure (docs/validation.md)"),
+                           "its perimeter / case.n_theta; on case.layout = \"cartesian\" choose case.lattice_ratio so "
+                           "that flat faces lie half a lattice spacing from a lattice row (the square: lattice_ratio = "
+                           "n_theta / (8 k)), a gap near 1.5 spacings spoils the wall pressure (docs/validation.md); "
+                           "case.layout = \"offset\" keeps the first row half a spacing from every face"),
     "aspect": Key(float, 1.0, minimum=0.0, exclusive_minimum=True,
                   doc="ellipse only: aspect ratio a/b of the semi-axes along/across its chord, a = R sqrt(aspect), "
                       "b = R / sqrt(aspect) (R = case.radius; parameter geometry.body.aspect)"),
