@@ -317,9 +317,10 @@ def test_cylinder_configs_from_before_the_heat_and_graded_keys_still_match():
     cyl = config.load(ROOT / "configs/cylinder.toml", [])
     old = json.loads(json.dumps(cyl, default=str))
     added = restart_added_keys("cylinder")
-    for k in added:
-        if k.startswith("case."):
-            del old["case"][k[5:]]
+    # the first runs' case keys: every key added since must be in the table (a key added without
+    # an entry would make every earlier cylinder run refuse --restart)
+    first = {"mach", "n_theta", "name", "r_far", "radius", "re", "steady_tol"}
+    old["case"] = {k: v for k, v in old["case"].items() if k in first}
     assert compare_settings(old, cyl, where="", added=added) == []
     hot = config.load(ROOT / "configs/cylinder.toml", ["case.prandtl=0.72", "case.wall_temperature=1.1"])
     assert compare_settings(old, hot, where="", added=added) == [

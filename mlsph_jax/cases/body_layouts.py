@@ -25,8 +25,9 @@
   h/2 from the wall all along any body (straight faces, corners, a spline's curvature), where
   the lattice's cut-out leaves h/2 to 3h/2.  The level sets come from the distance field on a
   grid of h / :data:`OFFSET_GRID` (:func:`offset_rows`; matplotlib's contouring, contourpy), so
-  convex corners get arcs and rows closed off in a concave pocket are kept; rows crowding into
-  a concave corner are thinned to :data:`GAP` h.  For a body given by points or any other.
+  convex corners get arcs and rows closed off in a concave pocket are kept; points of a row
+  closer than :data:`GAP` h to each other (where it turns through a kink sharper than 60
+  degrees) are merged into their centroid.  Fits every body (circle, ellipse, points).
 * ``"graded"`` (decision 90): the polar rings with the ring particles of the near wake replaced by
   a point cloud whose spacing grades smoothly.  Target spacing h_w(x) = D (``wake_spacing`` +
   ``wake_grading`` d / D), d the distance from the wake-axis segment x in [R, ``wake_length`` D],
@@ -80,6 +81,9 @@ from typing import NamedTuple
 import contourpy
 import jax
 import numpy as np
+from matplotlib.path import Path
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import Voronoi, cKDTree
 
 from ..errors import InputError, LayoutWarning
@@ -617,10 +621,13 @@ OFFSET_GRID = 16
 
 def _distance_field(poly: np.ndarray, h: float, reach: float):
     """The signed distance to the closed polygon ``poly`` (negative inside) on a square grid of
-    spacing h / :data:`OFFSET_GRID` over the body's bounding box widened by ``reach``, centred on
-    the origin's grid lines (so that a body symmetric about y = 0 gets a symmetric field): ``(gx,
-    gy, Z)``.  The distance is exact: the nearest of the edges' dense samples (spacing <= the grid
-    step) picks the edge, and the distances to it and to its two neighbours are taken."""
+    spacing h / :data:`OFFSET_GRID` over the body's bounding box widened by ``reach``, its nodes at
+    multiples of the spacing (so that a body symmetric about y = 0 gets a symmetric field): ``(gx,
+    gy, Z)``.  The nearest of the edges' dense samples (spacing <= the grid step) picks an edge, and
+    the distances to it and to its two neighbours are taken: exact unless two edges that are not
+    neighbours are nearly equally near (then off by at most (step / 2)^2 / 2d, ~1e-3 h at the first
+    row).  The inside test is matplotlib's (:class:`matplotlib.path.Path`), compiled: the grid has
+    ~(16 x extent / h)^2 nodes."""
     step = h / OFFSET_GRID
     lo, hi = poly.min(axis=0) - reach, poly.max(axis=0) + reach
     axes = [step * np.arange(math.floor(lo[k] / step), math.ceil(hi[k] / step) + 1) for k in range(2)]
@@ -637,67 +644,80 @@ def _distance_field(poly: np.ndarray, h: float, reach: float):
         d = b[e] - a[e]
         s = np.clip(np.sum((g - a[e]) * d, axis=1) / np.sum(d * d, axis=1), 0.0, 1.0)
         dist = np.minimum(dist, np.hypot(*(g - a[e] - s[:, None] * d).T))
-    inside = np.zeros(len(g), bool)
-    for k in range(0, len(g), 4096):         # set-up only; chunks bound the even-odd test's memory
-        inside[k:k + 4096] = inside_polygon(g[k:k + 4096], poly)
+    inside = Path(poly).contains_points(g)
     return axes[0], axes[1], np.where(inside, -dist, dist).reshape(X.shape)
 
 
 def _loop_from_front(loop: np.ndarray) -> np.ndarray:
     """A closed polyline (first point repeated at the end) turned counter-clockwise and started at
-    its front crossing of the x axis (the crossing of least x), or at its point of least x when it
-    does not cross the axis: a loop symmetric about y = 0 is then sampled symmetrically."""
+    its front crossing of the x axis (the crossing of least x; a vertex on the axis is a crossing),
+    or, when it does not reach the axis, at its point of least x and, among those (a vertical side),
+    of least |y|: a loop symmetric about y = 0, or a pair of loops mirroring each other, is then
+    sampled symmetrically (arc length from mirrored starts, in either sense, gives mirrored points)."""
     pts = loop[:-1]
     if polygon_area(pts) < 0.0:
         pts = pts[::-1]
     nxt = np.roll(pts, -1, axis=0)
-    cross = (pts[:, 1] <= 0.0) & (nxt[:, 1] > 0.0) | (pts[:, 1] > 0.0) & (nxt[:, 1] <= 0.0)
+    y, yn = pts[:, 1], nxt[:, 1]
+    cross = (y * yn < 0.0) | (y == 0.0)
     if not cross.any():
-        k = int(np.argmin(pts[:, 0]))
+        tol = 1e-12 * float(np.max(np.abs(pts)))
+        left = np.flatnonzero(pts[:, 0] <= pts[:, 0].min() + tol)
+        k = int(left[np.argmin(np.abs(y[left]))])
         return np.concatenate([pts[k:], pts[:k + 1]])
-    s = pts[:, 1] / np.where(cross, pts[:, 1] - nxt[:, 1], 1.0)
+    s = np.where(y == 0.0, 0.0, y / np.where(cross & (y != yn), y - yn, 1.0))
     xc = np.where(cross, pts[:, 0] + s * (nxt[:, 0] - pts[:, 0]), np.inf)
     k = int(np.argmin(xc))
     start = np.array([xc[k], 0.0])
-    return np.concatenate([start[None], pts[k + 1:], pts[:k + 1], start[None]])
+    rest = np.concatenate([pts[k + 1:], pts[:k + 1]])
+    if y[k] == 0.0:                           # the crossing is the vertex itself: not twice
+        rest = rest[:-1]
+    return np.concatenate([start[None], rest, start[None]])
 
 
 def _resample(loop: np.ndarray, h: float) -> np.ndarray:
     """``round(L / h)`` (at least 1) points equally spaced by arc length along the closed polyline
     ``loop`` (first point repeated at the end), the first at its start."""
     seg = np.linalg.norm(np.diff(loop, axis=0), axis=1)
+    loop = np.concatenate([loop[:1], loop[1:][seg > 0.0]])     # np.interp needs increasing s
+    seg = seg[seg > 0.0]
     s = np.concatenate([[0.0], np.cumsum(seg)])
     n = max(1, round(s[-1] / h))
     q = s[-1] * np.arange(n) / n
     return np.stack([np.interp(q, s, loop[:, 0]), np.interp(q, s, loop[:, 1])], axis=1)
 
 
-def _thin(points: np.ndarray, h: float) -> np.ndarray:
-    """``points`` less those closer than :data:`GAP` h to an earlier one (rows crowd where they turn
-    into a concave corner of the body)."""
-    pairs = cKDTree(points).query_pairs(GAP * h * (1.0 - 1e-9), output_type="ndarray")
-    if len(pairs) == 0:
-        return points
-    drop = np.zeros(len(points), bool)
-    for i, j in sorted(map(tuple, np.sort(pairs, axis=1))):     # the few crowded pairs, in order
-        if not drop[i]:
-            drop[j] = True
-    return points[~drop]
+def _merge_crowded(points: np.ndarray, h: float) -> np.ndarray:
+    """``points`` with every cluster of points closer than :data:`GAP` h to each other (connected
+    components of that relation) replaced by its centroid, repeated until none are: the points of
+    one row crowd where it turns through a kink sharper than 60 degrees (the distance to the body
+    is 1-Lipschitz, so different rows stay h apart).  A centroid is mirror-equivariant, so a
+    layout symmetric about the x axis stays so (dropping one point of a pair would not)."""
+    while True:
+        pairs = cKDTree(points).query_pairs(GAP * h * (1.0 - 1e-9), output_type="ndarray")
+        if len(pairs) == 0:
+            return points
+        n = len(points)
+        graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+        k, label = connected_components(graph, directed=False)
+        merged = np.zeros((k, 2))
+        np.add.at(merged, label, points)
+        points = merged / np.bincount(label, minlength=k)[:, None]
 
 
 def offset_rows(poly: np.ndarray, h: float, rows: int) -> np.ndarray:
     """The particles of the ``offset`` layout's rows: row m = 0 .. ``rows`` - 1 lies on the level
     set (m + 1/2) h of the distance to the body polygon ``poly`` (each of its closed loops: the
     outer one and any closed off in a concave pocket), ``round(length / h)`` points per loop equally
-    spaced by arc length from the loop's front crossing of the x axis; points closer than
-    :data:`GAP` h to an earlier one are dropped."""
+    spaced by arc length from the loop's front crossing of the x axis (:func:`_loop_from_front`);
+    points closer than :data:`GAP` h to each other are merged (:func:`_merge_crowded`)."""
     gx, gy, Z = _distance_field(poly, h, (rows + 1) * h)
     gen = contourpy.contour_generator(gx, gy, Z, line_type="Separate")
     out = []
     for m in range(rows):
         for loop in gen.lines((m + 0.5) * h):
             out.append(_resample(_loop_from_front(np.asarray(loop, float)), h))
-    return _thin(np.concatenate(out), h)
+    return _merge_crowded(np.concatenate(out), h)
 
 
 def offset_count(case: Mapping, support: Callable[[float], float]) -> int:
@@ -719,9 +739,11 @@ class Offset:
         h, rows = lattice_spacing(case), case["offset_rows"]
         need = body_extent(case) + (rows + GAP) * h + support(h) + h
         if case["r_far"] <= need:
+            most = math.ceil((case["r_far"] - (need - rows * h)) / h) - 1
+            fewer = f"case.offset_rows <= {most}" if most >= 1 else "a larger case.r_far"
             return [f"invalid case.offset_rows={rows} with case.r_far={show(case['r_far'])} (lattice spacing "
                     f"{h:.4g}): the rows reach into the support of the far field (out to r = {need:.4g}); allowed: "
-                    f"case.r_far > {need:.4g} or fewer rows"]
+                    f"case.r_far > {need:.4g} or {fewer}"]
         return []
 
     @staticmethod

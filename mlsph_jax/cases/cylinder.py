@@ -337,7 +337,8 @@ def check_cylinder(cfg: dict) -> None:
 
 def _body_problems(c: Mapping) -> list[str]:
     """A body given by points (decision 103) needs ``body_points`` (a simple closed curve), the
-    ``cartesian`` layout and aspect 1; the points are refused for a circle or an ellipse."""
+    ``cartesian`` or ``offset`` layout (decision 105) and aspect 1; the points are refused for a
+    circle or an ellipse."""
     if c["body"] not in POINT_BODIES:
         if c["body_points"]:
             return [f"invalid case.body_points={show(c['body_points'])} with case.body={show(c['body'])}: points "
@@ -377,12 +378,12 @@ def layout_problems(cfg: Mapping) -> list[str]:
     """The layout's own checks (:data:`~mlsph_jax.cases.body_layouts.BODY_LAYOUTS`), and no
     lattice key set for a layout that does not use it (nothing silently ignored)."""
     c = cfg["case"]
-    used = {"lattice_ratio": POINT_LAYOUTS, "offset_rows": ("offset",), "blend_radius": ("blend",),
+    used = {"lattice_ratio": ("cartesian", "offset"), "offset_rows": ("offset",), "blend_radius": ("blend",),
             "wake_spacing": ("graded",),
             "wake_length": ("graded",), "wake_grading": ("graded",)}
     problems = [f"invalid case.{k}={show(c[k])} with case.layout={show(c['layout'])}: it is used by case.layout="
                 f"{' / '.join(map(show, lays))} only; allowed: the default {show(CYLINDER_KEYS[k].default)} or "
-                f"case.layout={show(lays[0])}"
+                f"case.layout={' / '.join(map(show, lays))}"
                 for k, lays in used.items() if c["layout"] not in lays and c[k] != CYLINDER_KEYS[k].default]
     if problems:
         return problems
@@ -439,7 +440,7 @@ CYLINDER_KEYS: dict[str, Key] = {
                 doc="the body: a circle of case.radius, or an ellipse of the same area (equal-area radius "
                     "case.radius, aspect ratio case.aspect, angle of attack case.alpha) on the conformally "
                     "mapped polar layout (docs/architecture.md decision 65), or a polygon through / a periodic "
-                    "cubic spline through case.body_points on the cartesian layout (decision 103)"),
+                    "cubic spline through case.body_points on the cartesian or offset layout (decisions 103, 105)"),
     "body_points": Key(list, [], item_type=float, item_length=2,
                        doc="case.body = \"polygon\" / \"spline\" only: the vertices / knots [[x, y], ...] in "
                            "units of D = 2 case.radius about the body's centre (the origin), in order around the "
