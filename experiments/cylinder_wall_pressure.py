@@ -9,6 +9,11 @@ mirror Riemann problem, decisions 54 and 71), with the linear wall state's wall-
 vn_b (into the wall) and the acoustic term rho_b vn_b (vn_b + |vn_b| + c_b) of p* in C_p units.
 docs/validation.md "The front stagnation pressure".
 
+Also the pressure drag's parts: C_D,p from the scheme's wall pressure p* (the summary's
+``cd_pressure``), from the interpolated p_b alone (p* without its acoustic term), and the acoustic
+term's share at the quadrature points within ``CORNER_REACH`` D of a polygon body's vertices
+(docs/validation.md "Bodies given by points", corners).
+
     python experiments/cylinder_wall_pressure.py OUT [OUT ...]
 """
 
@@ -31,6 +36,8 @@ from mlsph_jax.eos import get_eos, to_primitive
 from mlsph_jax.kernels import get_kernel
 
 ROOT = Path(__file__).resolve().parents[1]
+#: Quadrature points closer than this (in D) to a polygon body's vertex count as "next to a corner".
+CORNER_REACH = 0.1
 
 
 def wall_pressure_parts(out: str | Path) -> dict:
@@ -61,7 +68,17 @@ def wall_pressure_parts(out: str | Path) -> dict:
     vn = np.sum((vel_w - np.asarray(bp.velocity)) * np.asarray(bp.normal), axis=1)
     x = np.asarray(p.x)
     fluid = np.asarray(p.kind) == 0
-    out_ = {}
+    D = 2.0 * cfg["case"]["radius"]
+    nx, dg = np.asarray(bp.normal)[:, 0], np.asarray(bp.dgamma)
+    cdp = lambda pw: float(np.sum((pw - p_inf) * nx * dg) / (q_inf * D))  # noqa: E731
+    out_ = {"cd_pressure": {"scheme_wall": cdp(pstar), "interpolated_wall": cdp(p_w)}}
+    vertices = P.get("geometry.body.vertices")
+    if vertices is not None:
+        v = np.asarray(vertices)
+        corner = np.min(np.linalg.norm(xb[:, None] - v[None], axis=-1), axis=1) < CORNER_REACH * D
+        out_["cd_pressure"]["acoustic_next_to_corners"] = cdp(np.where(corner, pstar, p_w)) - cdp(p_w)
+        out_["cd_pressure"]["acoustic_elsewhere"] = cdp(np.where(corner, p_w, pstar)) - cdp(p_w)
+        out_["cd_pressure"]["points_next_to_corners"] = int(corner.sum())
     for name, th0 in (("front", math.pi), ("base", 0.0)):
         b = int(np.argmin(np.abs(np.angle(np.exp(1j * (theta - th0))))))
         near = np.where(fluid)[0][np.argmin(np.sum((x[fluid] - xb[b]) ** 2, axis=1))]
@@ -78,7 +95,11 @@ def main():
     res = {}
     for out in args.runs:
         res[str(out)] = parts = wall_pressure_parts(out)
+        print(f"{out} C_D,p: " + ", ".join(f"{k} {v:.4f}" if isinstance(v, float) else f"{k} {v}"
+                                           for k, v in parts["cd_pressure"].items()))
         for name, v in parts.items():
+            if name == "cd_pressure":
+                continue
             print(f"{out} {name:5s} theta {v['theta_deg']:7.2f}  particle {v['first_ring_particle']:.4f}  "
                   f"linear {v['linear_wall']:.4f}  quadratic {v['quadratic_wall']:.4f}  "
                   f"scheme p* {v['scheme_wall']:.4f}  (vn_b {v['wall_normal_velocity']:+.2e}: "
