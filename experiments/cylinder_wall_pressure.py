@@ -69,16 +69,32 @@ def wall_pressure_parts(out: str | Path) -> dict:
     x = np.asarray(p.x)
     fluid = np.asarray(p.kind) == 0
     D = 2.0 * cfg["case"]["radius"]
-    nx, dg = np.asarray(bp.normal)[:, 0], np.asarray(bp.dgamma)
-    cdp = lambda pw: float(np.sum((pw - p_inf) * nx * dg) / (q_inf * D))  # noqa: E731
+    # drag along the stream: geometry.body.alpha turns it (ellipses and bodies given by points)
+    alpha = float(P["geometry.body.alpha"]) if "geometry.body.alpha" in P else 0.0
+    n_drag = np.asarray(bp.normal) @ np.array([math.cos(alpha), math.sin(alpha)])
+    dg = np.asarray(bp.dgamma)
+    cdp = lambda pw: float(np.sum((pw - p_inf) * n_drag * dg) / (q_inf * D))  # noqa: E731
     out_ = {"cd_pressure": {"scheme_wall": cdp(pstar), "interpolated_wall": cdp(p_w)}}
-    vertices = P.get("geometry.body.vertices")
-    if vertices is not None:
-        v = np.asarray(vertices)
+    if "geometry.body.vertices" in P:          # a polygon body: the points next to its corners
+        v = np.asarray(P["geometry.body.vertices"])
         corner = np.min(np.linalg.norm(xb[:, None] - v[None], axis=-1), axis=1) < CORNER_REACH * D
         out_["cd_pressure"]["acoustic_next_to_corners"] = cdp(np.where(corner, pstar, p_w)) - cdp(p_w)
         out_["cd_pressure"]["acoustic_elsewhere"] = cdp(np.where(corner, p_w, pstar)) - cdp(p_w)
         out_["cd_pressure"]["points_next_to_corners"] = int(corner.sum())
+        # the wall-normal velocity on the stencil cut to the half-space in front of each wall point
+        # (n_b points into the body, so the fluid side has -n_b . (x_j - x_b) > 0; evaluation only)
+        ahead = np.einsum("bkd,bd->bk", np.asarray(st_w.dx), -np.asarray(bp.normal)) > \
+            -1e-9 * np.asarray(st_w.h)[:, None]
+        vals_h, _, _, _ = mls.operators_block(st_w.dx, st_w.mask & jnp.asarray(ahead), st_w.h,
+                                              kernel=get_kernel(walls.kernel), degree=1, rcond=sc.rcond,
+                                              derivative="fixed_centre", with_coeffs=False)
+        vel_h = np.asarray(jnp.einsum("bk,bkd->bd", vals_h, prim.vel[st_w.idx]))
+        vn_h = np.sum((vel_h - np.asarray(bp.velocity)) * np.asarray(bp.normal), axis=1)
+        out_["corner_points"] = [
+            {"theta_deg": math.degrees(theta[b]), "x": xb[b].tolist(), "cp_interpolated": cp(p_w[b]),
+             "cp_scheme": cp(pstar[b]), "acoustic_term": (float(pstar[b]) - p_w[b]) / q_inf,
+             "wall_normal_velocity": float(vn[b]), "half_space_wall_normal_velocity": float(vn_h[b])}
+            for b in np.flatnonzero(corner)[np.argsort(theta[corner])]]
     for name, th0 in (("front", math.pi), ("base", 0.0)):
         b = int(np.argmin(np.abs(np.angle(np.exp(1j * (theta - th0))))))
         near = np.where(fluid)[0][np.argmin(np.sum((x[fluid] - xb[b]) ** 2, axis=1))]
@@ -97,8 +113,12 @@ def main():
         res[str(out)] = parts = wall_pressure_parts(out)
         print(f"{out} C_D,p: " + ", ".join(f"{k} {v:.4f}" if isinstance(v, float) else f"{k} {v}"
                                            for k, v in parts["cd_pressure"].items()))
+        for c in parts.get("corner_points", []):
+            print(f"{out} next to a corner: theta {c['theta_deg']:7.2f}  p_b {c['cp_interpolated']:+.3f}  "
+                  f"p* {c['cp_scheme']:+.3f}  (acoustic {c['acoustic_term']:+.3f}, vn_b "
+                  f"{c['wall_normal_velocity']:+.4f}; half-space vn_b {c['half_space_wall_normal_velocity']:+.4f})")
         for name, v in parts.items():
-            if name == "cd_pressure":
+            if name in ("cd_pressure", "corner_points"):
                 continue
             print(f"{out} {name:5s} theta {v['theta_deg']:7.2f}  particle {v['first_ring_particle']:.4f}  "
                   f"linear {v['linear_wall']:.4f}  quadratic {v['quadratic_wall']:.4f}  "

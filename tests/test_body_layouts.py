@@ -217,7 +217,8 @@ def test_coarse_re40_drag_in_band_on_the_lattice_layouts(layout, extra):
     cartesian h = 0.147 D, 2,996 particles, ~2 min; blend to 1.5 D, 1,256 particles, ~1 min on 2
     shared cores; offset rows at the cartesian h, 3,016 particles): C_D between 0.97 x 1.56 and the
     Re = 20 drag, as on the polar layout (the study in docs/validation.md, "Cartesian and blended
-    layouts": 1.743 and 1.842 against the polar 1.882 at t = 4; offset 1.906, "Bodies given by
+    layouts": 1.743 and 1.842 against the polar 1.882 at t = 4 with the config of then; with the
+    cubic config of 2026-12-05 offset 1.906, cartesian 1.704, polar 1.840, "Bodies given by
     points"), a symmetric flow and a pressure-dominated drag."""
     cfg = config_mod.load(CONFIG_DIR / "cylinder.toml", [*SMALL, f"case.layout=\"{layout}\"", *extra, *COARSE])
     m = run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True).summary["metrics"]

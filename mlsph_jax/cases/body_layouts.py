@@ -10,8 +10,8 @@
   spacing (its perimeter / ``case.n_theta``).  Lattice points inside the body or closer than
   :data:`GAP` h to its curve are removed (the cut-out works for any closed curve: it uses the
   curve's polygon of :data:`FINE` x ``n_theta`` vertices, or a polygon body's own vertices, not
-  a formula of the circle).  The only layout of a ``"polygon"`` or ``"spline"`` body
-  (:func:`shape_curve`; decision 103).
+  a formula of the circle).  With ``"offset"``, the layouts of a ``"polygon"`` or ``"spline"``
+  body (:func:`shape_curve`; decision 103).
 * ``"blend"``: the polar rings out to ``case.blend_radius`` (its ring edges end there exactly),
   the same square lattice beyond, with h the particle spacing sqrt(V) of the outermost ring (so
   the ring spacing matches the lattice spacing at the blend radius); lattice points inside the
@@ -107,7 +107,7 @@ WALL_GAP_WARN = 1.2
 MIN_SPACINGS_AROUND = 20
 #: Parameters a lattice layout cannot follow (shape derivatives refused).
 SHAPE_FIELDS = ("centre", "radius", "aspect", "vertices", "knots")
-#: ``case.body`` values given by points (``case.body_points``), not by a formula; lattice layouts only.
+#: ``case.body`` values given by points (``case.body_points``), not by a formula; :data:`POINT_LAYOUTS` only.
 POINT_BODIES = ("polygon", "spline")
 #: The layouts that fit any closed curve (the lattices), hence a body given by points.
 POINT_LAYOUTS = ("cartesian", "offset")
@@ -292,8 +292,9 @@ def _fixed_positions(x, vol, body, layout: str, params):
                                                  or not np.array_equal(np.asarray(P[k], float), setup[k]))]
         if moving:
             points = any(k.endswith((".vertices", ".knots")) for k in keys)
-            allowed = ("no derivative with respect to the points of a polygon or spline body (only the lattice "
-                       "layout fits them); geometry.body.alpha turns the stream and stays differentiable" if points
+            allowed = ("no derivative with respect to the points of a polygon or spline body (only the cartesian "
+                       "and offset layouts fit them, cut once at set-up); geometry.body.alpha turns the stream and "
+                       "stays differentiable" if points
                        else "case.layout=\"polar\" for shape derivatives (geometry.body.alpha turns the stream "
                        "and stays differentiable)")
             raise InputError(f"invalid derivative or change of {', '.join(moving)} with case.layout=\"{layout}\": "
