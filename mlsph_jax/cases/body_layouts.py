@@ -721,12 +721,6 @@ def offset_rows(poly: np.ndarray, h: float, rows: int) -> np.ndarray:
     return _merge_crowded(np.concatenate(out), h)
 
 
-def offset_count(case: Mapping, support: Callable[[float], float]) -> int:
-    """The ``offset`` layout's particle count from the config: its rows and lattice hold one
-    particle per h^2 as the cartesian lattice does (the lattice's count)."""
-    return _lattice_count(case, lattice_spacing(case), body_area_radius(case), support)
-
-
 class Offset:
     """``case.offset_rows`` rows along the body's offset curves at (m + 1/2) h, the square lattice of
     spacing h beyond (module docstring), Voronoi volumes: the first row lies h/2 from the wall all
@@ -761,10 +755,8 @@ class Offset:
         keep[near] &= distance_to_polygon(cand[near], poly) >= rows * h
         return _around(x_r, cand, keep, pts, h, reach, body, params, case, "offset")
 
-    @staticmethod
-    def count(case: Mapping, support: Callable[[float], float]) -> tuple[int, tuple[str, ...]]:
-        return (offset_count(case, support),
-                ("case.layout", "case.r_far", "case.lattice_ratio", "case.n_theta", "case.radius"))
+    #: the rows hold one particle per h^2 as the lattice does: the cartesian layout's count
+    count = staticmethod(Cartesian.count)
 
 
 BODY_LAYOUTS.register("offset", Offset())
