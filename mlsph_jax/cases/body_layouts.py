@@ -305,9 +305,14 @@ def _fixed_positions(x, vol, body, layout: str, params):
     return positions_at
 
 
-def _frozen_lattice(pts, r_out, reach):
+def _lattice_candidates(h: float, r_far: float, support: Callable[[float], float]):
+    """The square lattice of spacing ``h`` split at ``r_far``: the fluid candidates (|x| < r_far)
+    and the frozen far-field points out to r_far + reach, reach = support(h) + h (a full support
+    of frozen particles behind the outermost fluid particle)."""
+    reach = support(h) + h
+    pts = square_lattice(h, r_far + reach)
     r = np.hypot(pts[:, 0], pts[:, 1])
-    return pts[(r >= r_out) & (r < r_out + reach)]
+    return pts[r < r_far], pts[(r >= r_far) & (r < r_far + reach)]
 
 
 def check_outside(x, kind, body, params, layout: str) -> None:
@@ -343,7 +348,7 @@ def _finish(fluid, frozen, h, body, params, what, case_value):
     return pts, vol, kind
 
 
-def _around(inner, cand, keep, pts, h, reach, body, params, case, layout: str) -> BodyLayout:
+def _around(inner, cand, keep, frozen, h, body, params, case, layout: str) -> BodyLayout:
     """A lattice layout of ``inner`` particles next to the body (the blend's rings, the offset
     rows) and the lattice candidates ``cand[keep]`` at least :data:`GAP` h from them (a point
     exactly GAP h away is kept, not dropped by round-off), the frozen lattice beyond ``r_far``."""
@@ -351,7 +356,7 @@ def _around(inner, cand, keep, pts, h, reach, body, params, case, layout: str) -
     keep = keep.copy()
     keep[np.flatnonzero(keep)[d < GAP * h * (1.0 - 1e-9)]] = False
     fluid = np.concatenate([inner, cand[keep]])
-    x, vol, kind = _finish(fluid, _frozen_lattice(pts, case["r_far"], reach), h, body, params, layout,
+    x, vol, kind = _finish(fluid, frozen, h, body, params, layout,
                            case["n_theta"] if layout == "blend" else case["lattice_ratio"])
     return BodyLayout(x, vol, kind, h, _fixed_positions(x, vol, body, layout, params))
 
@@ -527,10 +532,7 @@ class Cartesian:
     @staticmethod
     def build(case: Mapping, body, params, support, names) -> BodyLayout:
         h = case["lattice_ratio"] * _perimeter(body, params) / case["n_theta"]
-        r_far, reach = case["r_far"], support(h) + h
-        pts = square_lattice(h, r_far + reach)
-        r = np.hypot(pts[:, 0], pts[:, 1])
-        cand = pts[r < r_far]
+        cand, frozen = _lattice_candidates(h, case["r_far"], support)
         poly = body_polygon(body, params)
         out = ~inside_polygon(cand, poly)
         near = np.hypot(cand[:, 0], cand[:, 1]) < _body_extent(body, params) + 2.0 * h
@@ -538,7 +540,7 @@ class Cartesian:
         # (1 - 1e-9): a point exactly GAP h from the curve (a straight face half a spacing from a
         # lattice line, e.g. a square of side 2k h) is kept on every face alike, not by round-off
         keep[near] &= distance_to_polygon(cand[near], poly) >= GAP * h * (1.0 - 1e-9)
-        x, vol, kind = _finish(cand[keep], _frozen_lattice(pts, r_far, reach), h, body, params, "cartesian",
+        x, vol, kind = _finish(cand[keep], frozen, h, body, params, "cartesian",
                                 case["lattice_ratio"])
         _warn_wall_gap(case, body, params, x[kind == int(Kind.FLUID)], h)
         return BodyLayout(x, vol, kind, h, _fixed_positions(x, vol, body, "cartesian", params))
@@ -576,13 +578,11 @@ class Blend:
         x_r, v_r = (np.asarray(a) for a in elliptic_polar_layout(edges, n_theta, params[body.key("centre")],
                                                                   semi_axes, angle))
         h = float(np.sqrt(np.mean(v_r[-n_theta:])))
-        r_far, reach = case["r_far"], support(h) + h
-        pts = square_lattice(h, r_far + reach)
-        cand = pts[np.hypot(pts[:, 0], pts[:, 1]) < r_far]
+        cand, frozen = _lattice_candidates(h, case["r_far"], support)
         # the outer edge of the rings (the mapped circle at the last edge) as a polygon
         ring_edge = _mapped_circle(edges[-1], edges[0], FINE * n_theta, params[body.key("centre")],
                                    np.asarray(semi_axes, float), float(angle))
-        return _around(x_r, cand, ~inside_polygon(cand, ring_edge), pts, h, reach, body, params, case, "blend")
+        return _around(x_r, cand, ~inside_polygon(cand, ring_edge), frozen, h, body, params, case, "blend")
 
     @staticmethod
     def count(case: Mapping, support: Callable[[float], float]) -> tuple[int, tuple[str, ...]]:
@@ -744,16 +744,14 @@ class Offset:
     @staticmethod
     def build(case: Mapping, body, params, support, names) -> BodyLayout:
         h = case["lattice_ratio"] * _perimeter(body, params) / case["n_theta"]
-        rows, r_far, reach = case["offset_rows"], case["r_far"], support(h) + h
-        poly = body_polygon(body, params)
+        rows, poly = case["offset_rows"], body_polygon(body, params)
         x_r = offset_rows(poly, h, rows)
-        pts = square_lattice(h, r_far + reach)
-        cand = pts[np.hypot(pts[:, 0], pts[:, 1]) < r_far]
+        cand, frozen = _lattice_candidates(h, case["r_far"], support)
         near = np.hypot(cand[:, 0], cand[:, 1]) < _body_extent(body, params) + (rows + 2.0) * h
         keep = np.ones(len(cand), bool)
         keep[near] = ~inside_polygon(cand[near], poly)
         keep[near] &= distance_to_polygon(cand[near], poly) >= rows * h
-        return _around(x_r, cand, keep, pts, h, reach, body, params, case, "offset")
+        return _around(x_r, cand, keep, frozen, h, body, params, case, "offset")
 
     #: the rows hold one particle per h^2 as the lattice does: the cartesian layout's count
     count = staticmethod(Cartesian.count)
