@@ -82,19 +82,27 @@ EOS_REGISTRY.register("stiffened_gas")(EOS(
 
 
 # --- Tait (barotropic): p = rho0 c0^2 / gamma [(rho/rho0)^gamma - 1] + p0 ----------------------
+def _power(r, a):
+    """r^a for r > 0 (NaN stays NaN) as exp(a log r): ``r ** a`` to round-off (every built-in
+    config's fingerprint kept to 1e-12), but XLA:CPU evaluates a float power element by element
+    where exp and log are vectorised, and the derivative a r^a / r reuses the value where that of
+    ``**`` is a second power (docs/performance.md, "The Tait power")."""
+    return jnp.exp(a * jnp.log(r))
+
+
 def _tait_p(rho, e, P):
     # in float64 whatever the state's precision: (rho/rho0)^gamma - 1 is a small difference of
     # numbers near 1 (1e-4 at Mach 0.1), which float32 would keep to three digits
     wide = lambda a: jnp.asarray(a, jnp.float64)
     r = jnp.where(rho > 0, wide(rho) / wide(P["eos.rho0"]), jnp.nan)
-    p = wide(P["eos.rho0"]) * wide(P["eos.c0"]) ** 2 / wide(P["eos.gamma"]) * (r ** wide(P["eos.gamma"]) - 1.0) \
+    p = wide(P["eos.rho0"]) * wide(P["eos.c0"]) ** 2 / wide(P["eos.gamma"]) * (_power(r, wide(P["eos.gamma"])) - 1.0) \
         + wide(P["eos.p0"])
     return p.astype(jnp.result_type(rho))
 
 
 def _tait_c(rho, p, P):
     r = jnp.where(rho > 0, rho / P["eos.rho0"], jnp.nan)
-    return P["eos.c0"] * r ** (0.5 * (P["eos.gamma"] - 1.0))
+    return P["eos.c0"] * _power(r, 0.5 * (P["eos.gamma"] - 1.0))
 
 
 EOS_REGISTRY.register("tait")(EOS(
