@@ -12,7 +12,10 @@ docs/validation.md "The front stagnation pressure".
 Also the pressure drag's parts: C_D,p from the scheme's wall pressure p* (the summary's
 ``cd_pressure``), from the interpolated p_b alone (p* without its acoustic term), and the acoustic
 term's share at the quadrature points within ``CORNER_REACH`` D of a polygon body's vertices
-(docs/validation.md "Bodies given by points", corners).
+(docs/validation.md "Bodies given by points", corners), with the wall-normal velocity vn_b at
+those points from the scheme's stencil, from the stencil cut to the half-space in front of the
+point and from the stencil cut to its face's strip (evaluation only), and the wall-normal
+velocities of the nearest stencil particles.
 
     python experiments/cylinder_wall_pressure.py OUT [OUT ...]
 """
@@ -38,6 +41,19 @@ from mlsph_jax.kernels import get_kernel
 ROOT = Path(__file__).resolve().parents[1]
 #: Quadrature points closer than this (in D) to a polygon body's vertex count as "next to a corner".
 CORNER_REACH = 0.1
+#: How many of the nearest stencil particles to list for each point next to a corner.
+CORNER_NEAREST = 4
+
+
+def _in_face_strip(vertices, xb, xj):
+    """``[Nb, K]``: the particles ``xj[b, k]`` whose projection on the polygon edge nearest to the
+    wall point ``xb[b]`` lies within that edge (no particle beyond the edge's ends)."""
+    a, e = vertices, np.roll(vertices, -1, axis=0) - vertices            # edges a + s e, s in [0, 1]
+    s_b = np.clip(np.einsum("bed,ed->be", xb[:, None] - a[None], e) / np.sum(e * e, axis=1), 0.0, 1.0)
+    edge = np.argmin(np.linalg.norm(xb[:, None] - (a[None] + s_b[..., None] * e[None]), axis=-1), axis=1)
+    a_b, e_b = a[edge], e[edge]
+    s = np.einsum("bkd,bd->bk", xj - a_b[:, None], e_b) / np.sum(e_b * e_b, axis=1)[:, None]
+    return (s >= -1e-9) & (s <= 1.0 + 1e-9)
 
 
 def wall_pressure_parts(out: str | Path) -> dict:
@@ -90,10 +106,27 @@ def wall_pressure_parts(out: str | Path) -> dict:
                                               derivative="fixed_centre", with_coeffs=False)
         vel_h = np.asarray(jnp.einsum("bk,bkd->bd", vals_h, prim.vel[st_w.idx]))
         vn_h = np.sum((vel_h - np.asarray(bp.velocity)) * np.asarray(bp.normal), axis=1)
+        # ... and to the face's strip: in front of the point's own face and no further along it than
+        # the face reaches (no particle round the corner; evaluation only)
+        strip = np.asarray(ahead) & _in_face_strip(v, xb, np.asarray(p.x)[np.asarray(st_w.idx)])
+        vals_s, _, _, _ = mls.operators_block(st_w.dx, st_w.mask & jnp.asarray(strip), st_w.h,
+                                              kernel=get_kernel(walls.kernel), degree=1, rcond=sc.rcond,
+                                              derivative="fixed_centre", with_coeffs=False)
+        vel_s = np.asarray(jnp.einsum("bk,bkd->bd", vals_s, prim.vel[st_w.idx]))
+        vn_s = np.sum((vel_s - np.asarray(bp.velocity)) * np.asarray(bp.normal), axis=1)
+        # the wall-normal velocities of the stencil's particles themselves (the spread a linear fit
+        # must reconcile over one spacing round the corner)
+        vn_j = np.einsum("bkd,bd->bk", np.asarray(prim.vel)[np.asarray(st_w.idx)], np.asarray(bp.normal))
+        dist = np.where(np.asarray(st_w.mask), np.linalg.norm(np.asarray(st_w.dx), axis=-1), np.inf)
+        nearest = np.argsort(dist, axis=1)[:, :CORNER_NEAREST]
         out_["corner_points"] = [
             {"theta_deg": math.degrees(theta[b]), "x": xb[b].tolist(), "cp_interpolated": cp(p_w[b]),
              "cp_scheme": cp(pstar[b]), "acoustic_term": (float(pstar[b]) - p_w[b]) / q_inf,
-             "wall_normal_velocity": float(vn[b]), "half_space_wall_normal_velocity": float(vn_h[b])}
+             "wall_normal_velocity": float(vn[b]), "half_space_wall_normal_velocity": float(vn_h[b]),
+             "face_strip_wall_normal_velocity": float(vn_s[b]),
+             "face_strip_particles": int((strip[b] & np.asarray(st_w.mask)[b]).sum()),
+             "nearest_particles_vn": vn_j[b, nearest[b]].tolist(),
+             "nearest_particles_distance": dist[b, nearest[b]].tolist()}
             for b in np.flatnonzero(corner)[np.argsort(theta[corner])]]
     for name, th0 in (("front", math.pi), ("base", 0.0)):
         b = int(np.argmin(np.abs(np.angle(np.exp(1j * (theta - th0))))))
@@ -116,7 +149,10 @@ def main():
         for c in parts.get("corner_points", []):
             print(f"{out} next to a corner: theta {c['theta_deg']:7.2f}  p_b {c['cp_interpolated']:+.3f}  "
                   f"p* {c['cp_scheme']:+.3f}  (acoustic {c['acoustic_term']:+.3f}, vn_b "
-                  f"{c['wall_normal_velocity']:+.4f}; half-space vn_b {c['half_space_wall_normal_velocity']:+.4f})")
+                  f"{c['wall_normal_velocity']:+.4f}; half-space {c['half_space_wall_normal_velocity']:+.4f}; face "
+                  f"strip {c['face_strip_wall_normal_velocity']:+.4f} from {c['face_strip_particles']} particles; "
+                  "nearest particles' vn " + " ".join(f"{u:+.3f}" for u in c["nearest_particles_vn"]) +
+                  " at " + " ".join(f"{r:.3f}" for r in c["nearest_particles_distance"]) + ")")
         for name, v in parts.items():
             if name in ("cd_pressure", "corner_points"):
                 continue
