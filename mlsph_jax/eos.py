@@ -84,7 +84,7 @@ EOS_REGISTRY.register("stiffened_gas")(EOS(
 # --- Tait (barotropic): p = rho0 c0^2 / gamma [(rho/rho0)^gamma - 1] + p0 ----------------------
 def _power(r, a):
     """r^a for r > 0 (NaN stays NaN) as exp(a log r): ``r ** a`` to round-off (every built-in
-    config's fingerprint kept to 1e-12), but XLA:CPU evaluates a float power element by element
+    config's fingerprint within its tolerance), but XLA:CPU evaluates a float power element by element
     where exp and log are vectorised, and the derivative a r^a / r reuses the value where that of
     ``**`` is a second power (docs/performance.md, "The Tait power")."""
     return jnp.exp(a * jnp.log(r))
