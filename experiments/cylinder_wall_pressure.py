@@ -116,7 +116,8 @@ def wall_pressure_parts(out: str | Path) -> dict:
         vn_s = np.sum((vel_s - np.asarray(bp.velocity)) * np.asarray(bp.normal), axis=1)
         # the wall-normal velocities of the stencil's particles themselves (the spread a linear fit
         # must reconcile over one spacing round the corner)
-        vn_j = np.einsum("bkd,bd->bk", np.asarray(prim.vel)[np.asarray(st_w.idx)], np.asarray(bp.normal))
+        vn_j = np.einsum("bkd,bd->bk", np.asarray(prim.vel)[np.asarray(st_w.idx)] - np.asarray(bp.velocity)[:, None],
+                         np.asarray(bp.normal))
         dist = np.where(np.asarray(st_w.mask), np.linalg.norm(np.asarray(st_w.dx), axis=-1), np.inf)
         nearest = np.argsort(dist, axis=1)[:, :CORNER_NEAREST]
         out_["corner_points"] = [
