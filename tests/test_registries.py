@@ -96,9 +96,15 @@ def test_registered_stress_is_what_runs(scratch):
     cfg = config.load("configs/taylor_green_2d.toml", over)
     cfg2 = config.load("configs/taylor_green_2d.toml", [*over, "scheme.stress=double_stokes"])
     cfg_mu2 = config.load("configs/taylor_green_2d.toml", [*over, "case.re=50"])
-    r = [np.asarray(_rhs(build_problem(c))[2]) for c in (cfg, cfg2, cfg_mu2)]
-    # doubling the stress law is doubling mu: the rhs of re=50 with the plain law, to round-off
-    np.testing.assert_allclose(r[1], r[2], rtol=0, atol=1e-12 * np.abs(r[2]).max())
+    pbs = [build_problem(c) for c in (cfg, cfg2, cfg_mu2)]
+    r = [np.asarray(_rhs(pb)[2]) for pb in pbs]
+    # doubling the stress law is doubling mu: the rhs of re=50 with the plain law, to round-off.  The
+    # round-off floor is the Tait pressure's: rho0 c0^2 / gamma [(rho/rho0)^gamma - 1] (57 x 1e-3 here)
+    # carries ulps of rho0 c0^2 / gamma however it is rounded, and the programs with the two stress
+    # settings fuse it differently (measured up to 2.9e-14; the viscous part checked is 7e-3)
+    P = pbs[0].params
+    scale = float(P["eos.rho0"] * P["eos.c0"] ** 2 / P["eos.gamma"])
+    np.testing.assert_allclose(r[1], r[2], rtol=0, atol=1e-12 * np.abs(r[2]).max() + 16 * np.finfo(float).eps * scale)
     assert np.abs(r[1] - r[0]).max() > 1e-6
 
 
