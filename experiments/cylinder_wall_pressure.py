@@ -101,19 +101,18 @@ def wall_pressure_parts(out: str | Path) -> dict:
         # (n_b points into the body, so the fluid side has -n_b . (x_j - x_b) > 0; evaluation only)
         ahead = np.einsum("bkd,bd->bk", np.asarray(st_w.dx), -np.asarray(bp.normal)) > \
             -1e-9 * np.asarray(st_w.h)[:, None]
-        vals_h, _, _, _ = mls.operators_block(st_w.dx, st_w.mask & jnp.asarray(ahead), st_w.h,
-                                              kernel=get_kernel(walls.kernel), degree=1, rcond=sc.rcond,
-                                              derivative="fixed_centre", with_coeffs=False)
-        vel_h = np.asarray(jnp.einsum("bk,bkd->bd", vals_h, prim.vel[st_w.idx]))
-        vn_h = np.sum((vel_h - np.asarray(bp.velocity)) * np.asarray(bp.normal), axis=1)
+        def vn_on(keep):   # vn_b of the linear wall state on the stencil slots ``keep``
+            vals_k, _, _, _ = mls.operators_block(st_w.dx, st_w.mask & jnp.asarray(keep), st_w.h,
+                                                  kernel=get_kernel(walls.kernel), degree=1, rcond=sc.rcond,
+                                                  derivative="fixed_centre", with_coeffs=False)
+            vel_k = np.asarray(jnp.einsum("bk,bkd->bd", vals_k, prim.vel[st_w.idx]))
+            return np.sum((vel_k - np.asarray(bp.velocity)) * np.asarray(bp.normal), axis=1)
+
+        vn_h = vn_on(ahead)
         # ... and to the face's strip: in front of the point's own face and no further along it than
         # the face reaches (no particle round the corner; evaluation only)
         strip = np.asarray(ahead) & _in_face_strip(v, xb, np.asarray(p.x)[np.asarray(st_w.idx)])
-        vals_s, _, _, _ = mls.operators_block(st_w.dx, st_w.mask & jnp.asarray(strip), st_w.h,
-                                              kernel=get_kernel(walls.kernel), degree=1, rcond=sc.rcond,
-                                              derivative="fixed_centre", with_coeffs=False)
-        vel_s = np.asarray(jnp.einsum("bk,bkd->bd", vals_s, prim.vel[st_w.idx]))
-        vn_s = np.sum((vel_s - np.asarray(bp.velocity)) * np.asarray(bp.normal), axis=1)
+        vn_s = vn_on(strip)
         # the wall-normal velocities of the stencil's particles themselves (the spread a linear fit
         # must reconcile over one spacing round the corner)
         vn_j = np.einsum("bkd,bd->bk", np.asarray(prim.vel)[np.asarray(st_w.idx)] - np.asarray(bp.velocity)[:, None],
