@@ -35,7 +35,10 @@ Reverse-mode memory (``checkpoint``):
 * ``"none"``: every intermediate of every stage is stored (fastest, memory ~ steps x stages x
   the right-hand side's working set);
 * ``"step"``: ``jax.checkpoint`` around each step: only the state at every step is stored and a
-  step is recomputed during the backward pass (memory ~ steps x state);
+  step is recomputed during the backward pass (memory ~ steps x state; the state carried from step
+  to step is q and the MOOD degree where the frame does not move the particles, nv * 8 + 4 bytes
+  per particle in float64, the whole :class:`~mlsph_jax.state.Particles` otherwise; the records
+  are taken inside the checkpointed step and store nothing);
 * ``"nested"`` (default): steps are grouped into segments of ``segment`` steps (default
   ~sqrt(n_steps)); the scan over segments is checkpointed and so is each step inside, so only
   segment boundaries plus one segment of states are stored (memory ~ (steps/segment + segment)
@@ -232,29 +235,53 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
             shapes = jax.eval_shape(lambda p: average(p, 0.0, params), particles)
             acc0 = accumulate({n: (jnp.zeros(v.shape, v.dtype),) * 3 for n, v in shapes.items()}, particles,
                               jnp.asarray(0, jnp.int32))
-        carry0 = (particles, jnp.asarray(0, jnp.int32), st0, failed0, bad0, acc0)
+        # Fixed particles (a frame that does not move them, e.g. Eulerian): a step changes q and ppd
+        # only (integrate._euler keeps x and vol bit for bit), so the scan carries just those and
+        # reads x, vol and kind from ``base``, a constant of the scan: reverse mode then stores
+        # nv * 8 + 4 bytes per particle and step instead of the whole state (docs/performance.md,
+        # "What reverse mode keeps per step").  ``base`` has its mirror ghosts regenerated from
+        # their parents, as every step's output has.
+        base = particles if bnd is None else bnd.apply(particles, params)
 
-        def step(carry, _):
-            p, k, st, failed, bad, acc = carry
+        def pack(p):
+            return p if scheme.moving else (p.q, p.ppd)
+
+        def unpack(c):
+            return c if scheme.moving else base.replace(q=c[0], ppd=c[1])
+
+        carry0 = (pack(particles), jnp.asarray(0, jnp.int32), st0, failed0, bad0, acc0)
+
+        def step(carry, j):
+            c, k, st, failed, bad, acc = carry
+            p = unpack(c)
             p2, ovf, stats = ssp_rk3_step(p, params, dt, scheme, geom_fn, bnd)
             st2, bad2 = step_status(p, p2, params, scheme, dt, ovf, stats, dt_fixed=True, cfl=cfl,
                                     cfl_viscous=cfl_viscous, boundary=bnd)
             alive = st == 0
             commit = alive & (st2 == 0)   # a failing step is not committed; later steps are no-ops
-            p = jax.tree_util.tree_map(lambda a, b: jnp.where(commit, a, b), p2, p)
+            c = jax.tree_util.tree_map(lambda a, b: jnp.where(commit, a, b), pack(p2), c)
             new_fail = alive & (st2 != 0)
             if average is not None:
-                acc = accumulate(acc, p, k + 1)
-            return (p, k + 1, jnp.where(alive, st2, st), jnp.where(new_fail, k + 1, failed),
-                    jnp.where(new_fail, bad2, bad), acc), None
+                acc = accumulate(acc, unpack(c), k + 1)
+            # A block's record is taken inside its last step: under the step's checkpoint reverse
+            # mode keeps nothing for it beyond the step's input.  Taken after the step (as it was),
+            # it stored its own input, a second copy of the state, and its intermediates.
+            t = (k + 1) * dt                                  # = (block + 1) * record_every * dt
+            if record_every == 1:
+                rec = diag(unpack(c), t, params)
+            else:
+                rec = jax.lax.cond(j == record_every - 1, lambda c: diag(unpack(c), t, params),
+                                   lambda c: jax.tree_util.tree_map(jnp.zeros_like, rec_shapes), c)
+            return (c, k + 1, jnp.where(alive, st2, st), jnp.where(new_fail, k + 1, failed),
+                    jnp.where(new_fail, bad2, bad), acc), rec
 
+        rec_shapes = None if record_every == 1 else jax.eval_shape(lambda: diag(particles, 0.0, params))
         if checkpoint in ("step", "nested"):
             step = jax.checkpoint(step, policy=policy)
 
         def block(carry, k):
-            carry, _ = jax.lax.scan(step, carry, None, length=record_every)
-            t = (k + 1) * record_every * dt
-            return carry, diag(carry[0], t, params)
+            carry, recs = jax.lax.scan(step, carry, jnp.arange(record_every))
+            return carry, jax.tree_util.tree_map(lambda a: a[-1], recs)
 
         if checkpoint == "nested":
             def segment_fn(carry, ks):
@@ -262,10 +289,11 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
 
             segment_fn = jax.checkpoint(segment_fn, policy=policy)
             ks = jnp.arange(n_rec).reshape(n_rec // blocks_per_seg, blocks_per_seg)
-            (pf, _, st, failed, bad, acc), rec = jax.lax.scan(segment_fn, carry0, ks)
+            (cf, _, st, failed, bad, acc), rec = jax.lax.scan(segment_fn, carry0, ks)
             rec = jax.tree_util.tree_map(lambda a: a.reshape((n_rec,) + a.shape[2:]), rec)
         else:
-            (pf, _, st, failed, bad, acc), rec = jax.lax.scan(block, carry0, jnp.arange(n_rec))
+            (cf, _, st, failed, bad, acc), rec = jax.lax.scan(block, carry0, jnp.arange(n_rec))
+        pf = unpack(cf)
         first = diag(particles, 0.0, params)
         series = {k: jnp.concatenate([jnp.asarray(first[k])[None], rec[k]]) for k in rec}
         times = jnp.arange(n_rec + 1) * (record_every * dt)

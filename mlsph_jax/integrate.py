@@ -136,21 +136,29 @@ def _local_dt(particles: Particles, params: Params, scheme: Scheme):
     return jnp.where(particles.kind == Kind.FLUID, dxi / speed, jnp.inf)
 
 
-def _euler(z, dt, dz):
+def _euler(z, dt, dz, moving: bool = True):
     """Forward-Euler sub-step z + dt*dz on the (x, vol, q) parts of fluid particles; other
-    particles keep their state bit for bit (frozen/boundary particles are never updated)."""
+    particles keep their state bit for bit (frozen/boundary particles are never updated).
+    ``moving=False`` (a frame whose particles stay put, e.g. Eulerian: dx/dt = dV/dt = 0) evolves
+    q only, so positions and volumes stay the set-up values bit for bit (a*x + b*x with the
+    Shu-Osher weights would move them by round-off)."""
     dx, dvol, dq = dz
     f1 = (z.kind == Kind.FLUID)[:, None]
     dtc = dt[:, None] if jnp.ndim(dt) else dt     # per-particle steps (local time stepping) or one
     # (a float32 state stays float32 where a term was computed wider; no-op in float64)
+    q = jnp.where(f1, z.q + dtc * dq, z.q).astype(z.q.dtype)
+    if not moving:
+        return z.replace(q=q)
     return z.replace(x=jnp.where(f1, z.x + dtc * dx, z.x).astype(z.x.dtype),
-                     vol=jnp.where(f1[:, 0], z.vol + dt * dvol, z.vol).astype(z.vol.dtype),
-                     q=jnp.where(f1, z.q + dtc * dq, z.q).astype(z.q.dtype))
+                     vol=jnp.where(f1[:, 0], z.vol + dt * dvol, z.vol).astype(z.vol.dtype), q=q)
 
 
-def _combine(a, y, b, e):
-    """Shu-Osher combination a*y + b*e of the fluid particles (others keep y bit for bit)."""
+def _combine(a, y, b, e, moving: bool = True):
+    """Shu-Osher combination a*y + b*e of the fluid particles (others keep y bit for bit);
+    ``moving=False``: of q only (:func:`_euler`)."""
     f1 = (y.kind == Kind.FLUID)[:, None]
+    if not moving:
+        return y.replace(q=jnp.where(f1, a * y.q + b * e.q, y.q))
     return y.replace(x=jnp.where(f1, a * y.x + b * e.x, y.x), vol=jnp.where(f1[:, 0], a * y.vol + b * e.vol, y.vol),
                      q=jnp.where(f1, a * y.q + b * e.q, y.q))
 
@@ -258,7 +266,7 @@ def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, boun
             geom, cch = geom_fn(z, cch)
 
         def euler(zz):
-            return _euler(zz, dt, rhs(zz, params, geom, scheme, boundary))
+            return _euler(zz, dt, rhs(zz, params, geom, scheme, boundary), scheme.moving)
 
         e, ppd, n, unres = limiter.substep(z, params, dt, geom, scheme, euler)
         ppd_min = jnp.minimum(ppd_min, ppd)
@@ -266,7 +274,7 @@ def ssp_rk3_step(p: Particles, params: Params, dt, scheme: Scheme, geom_fn, boun
         first = jnp.where(jnp.any(unres), jnp.argmax(unres), -1).astype(jnp.int32)
         unres_particle = jnp.where(unres_particle >= 0, unres_particle, first)
         n_evals, unresolved = n_evals + n, unresolved + jnp.any(unres).astype(jnp.int32)
-        cand = _combine(a, p, b, e)
+        cand = _combine(a, p, b, e, scheme.moving)
         deg_min = jnp.minimum(deg_min, geom.degree)
         return (cand, overflow | overflow_bits(geom), ppd_min, n_evals, unresolved, unres_particle, deg_min,
                 cch), None

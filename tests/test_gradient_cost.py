@@ -20,6 +20,8 @@ import mlsph_jax.approximation as apx
 from mlsph_jax import config
 from mlsph_jax.cases import build_problem
 from mlsph_jax.differentiable import make_simulate, with_param
+from mlsph_jax.integrate import ssp_rk3_step
+from mlsph_jax.run import setup_run
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -252,3 +254,52 @@ def test_row_blocks_reads_rows_only_of_its_row_args():
     a, b = jnp.arange(10.0), jnp.arange(10.0)
     with pytest.raises(ValueError, match="row_args"):
         apx.row_blocks(lambda size, rows: (rows(b),), 10, 4, [((10,), a.dtype)], (a,))
+
+
+
+
+@pytest.mark.parametrize("config_name,over", [
+    ("taylor_green_2d", ["case.n=8"]),
+    ("lid_driven_cavity", ["case.n=8"]),
+    pytest.param("taylor_green_2d", ["case.n=8", "scheme.frame=ale_shift"], marks=pytest.mark.slow)])  # ~2 min
+def test_reverse_mode_stores_one_state_per_step_and_nothing_for_fixed_positions(config_name, over):
+    """What a checkpointed differentiated run (``checkpoint="step"``) keeps per step: the state it
+    carries, nothing else.  XLA's planned memory of the gradient grows with the step count by
+    exactly the carried state per particle and step: q and the MOOD degree (nv * 8 + 4 bytes) for
+    a frame that does not move its particles, the whole state (x, vol, q, kind, ppd) for a moving
+    one.  Before, the diagnostics recorded after each step stored their inputs and intermediates
+    (97 bytes per particle and step for the Tait Taylor-Green vortex in either frame), and fixed
+    particles carried their positions and volumes.  Those stay the set-up values bit for bit
+    through SSP-RK3 steps, mirror ghosts' included (the Shu-Osher combination a x + b x moved them
+    by round-off)."""
+    pb = build_problem(config.load(ROOT / f"configs/{config_name}.toml", over))
+    p0, params, scheme = pb.particles, pb.params, pb.scheme
+    n, nv = p0.q.shape
+
+    geom_fn = setup_run(pb).geometry_fn(p0)
+    step = jax.jit(lambda p: ssp_rk3_step(p, params, 1e-4, scheme, geom_fn, pb.boundary)[0])
+    p = p0
+    for _ in range(4):
+        p = step(p)
+    assert not np.array_equal(np.asarray(p.q), np.asarray(p0.q))
+    assert np.array_equal(np.asarray(p.x), np.asarray(p0.x)) != scheme.moving
+    if not scheme.moving:
+        assert np.array_equal(np.asarray(p.vol), np.asarray(p0.vol))
+
+    def simulate(steps):
+        return make_simulate(pb, n_steps=steps, t_end=steps * 1e-4, checkpoint="step")
+
+    out = jax.jit(simulate(4))(params, p0)
+    assert int(out.status) == 0
+    np.testing.assert_allclose(np.asarray(out.particles.q), np.asarray(p.q), rtol=0, atol=1e-14)
+
+    def planned(steps):
+        sim = simulate(steps)
+        grad = jax.jit(jax.grad(lambda mu: sim(with_param(params, "physics.mu", mu), p0).series["ke"][-1]))
+        ma = grad.lower(params["physics.mu"]).compile().memory_analysis()
+        return ma.temp_size_in_bytes + ma.argument_size_in_bytes + ma.output_size_in_bytes
+
+    state = sum(a.dtype.itemsize * a.size for a in jax.tree_util.tree_leaves(p0)) / n if scheme.moving \
+        else nv * 8 + 4
+    per_step = (planned(48) - planned(16)) / 32 / n
+    assert state <= per_step <= state + 32 / n, (per_step, state)   # + the step counter and status words
