@@ -12,10 +12,14 @@ without checkpointing stores every stage's residuals).  Prints a table and write
 experiments/output/bench_gradients.json.
 
     python experiments/bench_gradients.py [--sizes 50 100] [--steps 1000] [--checkpoints none step nested]
-        [--max-gb 16] [--plan-only] [--out FILE]
+        [--max-gb 16] [--plan-only] [--reverse-alone] [--out FILE]
 
 ``--plan-only`` compiles both programs and reports XLA's memory plan without executing them (the
 issue's 10,000-step question: ``--sizes 100 --steps 10000 --checkpoints nested --plan-only``).
+
+``--reverse-alone``: after each configuration's child, a second fresh process compiles and runs
+only the gradient, once: its peak resident memory is the gradient's own (the first child's holds
+the forward program and its run as well), and its time a second reverse-mode timing.
 
 ``--remat-blocks on|off|ab``: with (default) or without the per-block rematerialisation of the
 stencil passes (:func:`mlsph_jax.approximation.block_remat`); ``ab`` compiles both in the same
@@ -69,6 +73,27 @@ def _timed(fn, arg) -> tuple[float, float, object]:
     c0, t0 = time.process_time(), time.perf_counter()
     val = jax.block_until_ready(fn(arg))
     return time.perf_counter() - t0, time.process_time() - c0, val
+
+
+def alone(n: int, steps: int, checkpoint: str, dt: float | None = None) -> dict:
+    """Only the gradient, compiled and run once in this process: its peak resident memory (compile
+    included) without the forward program beside it (``--reverse-alone``)."""
+    import jax
+
+    from mlsph_jax import config
+    from mlsph_jax.cases import build_problem
+    from mlsph_jax.differentiable import make_simulate, with_param
+
+    t_end = 0.2 if dt is None else dt * steps
+    pb = build_problem(config.load(ROOT / "configs/taylor_green_2d.toml", [f"case.n={n}", f"time.t_end={t_end!r}"]))
+    sim = make_simulate(pb, n_steps=steps, checkpoint=checkpoint, record_every=1)
+    mu = float(pb.params["physics.mu"])
+    cg = jax.jit(jax.grad(lambda mu: sim(with_param(pb.params, "physics.mu", mu), pb.particles).series["ke"][-1]))
+    cg = cg.lower(mu).compile()
+    wall, cpu, val = _timed(cg, mu)
+    return {"reverse_alone_s": wall, "reverse_alone_cpu_s": cpu, "reverse_alone_gradient": float(val),
+            "peak_rss_reverse_alone_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+            "planned_reverse_alone_mb": _planned_mb(cg)}
 
 
 def child(n: int, steps: int, checkpoint: str, max_gb: float, plan_only: bool = False, remat: str = "on",
@@ -184,10 +209,19 @@ def main():
                     help="also time forward mode with these numbers (>= 1) of tangent components")
     ap.add_argument("--tangent-blocks", choices=("loop", "scan"), default="loop",
                     help="forward mode through the blocked passes' loop JVP (shipped) or scanned blocks")
+    ap.add_argument("--reverse-alone", action="store_true",
+                    help="also run the gradient alone in a fresh process: its peak memory without the forward program")
     ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
+    ap.add_argument("--alone-child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if any(k < 1 for k in args.tangents):
         ap.error(f"invalid --tangents {args.tangents}; allowed: integers >= 1")
+    if args.reverse_alone and (args.remat_blocks != "on" or args.block_scan != "on"):
+        ap.error("invalid --reverse-alone with --remat-blocks/--block-scan other than on: the gradient alone is "
+                 "the shipped program; allowed: --reverse-alone with both on (the default)")
+    if args.child and args.alone_child:
+        print(json.dumps(alone(int(args.child[0]), int(args.child[1]), args.child[2], args.dt)))
+        return
     if args.child:
         print(json.dumps(child(int(args.child[0]), int(args.child[1]), args.child[2], args.max_gb, args.plan_only,
                                args.remat_blocks, args.dt, args.repeat, args.block_scan, args.tangents,
@@ -220,6 +254,19 @@ def main():
                 continue
             row = json.loads(r.stdout.strip().splitlines()[-1])
             rows.append(row)
+            if args.reverse_alone and "skipped" not in row:
+                cmd_alone = [sys.executable, __file__, "--alone-child", "--child", str(n), str(args.steps), ck]
+                if args.dt is not None:
+                    cmd_alone[2:2] = ["--dt", repr(args.dt)]
+                try:
+                    ra = subprocess.run(cmd_alone, capture_output=True, text=True, timeout=args.timeout)
+                except subprocess.TimeoutExpired:
+                    row["reverse_alone_error"] = f"timeout after {args.timeout:.0f} s"
+                else:
+                    if ra.returncode == 0:
+                        row.update(json.loads(ra.stdout.strip().splitlines()[-1]))
+                    else:
+                        row["reverse_alone_error"] = (ra.stderr.strip().splitlines() or ["?"])[-1][:160]
             plan = row["planned_reverse_mb"]
             plan_s = f"{plan:>9.0f}" if plan is not None else f"{'?':>9}"
             comp = row["forward_compile_s"] + row["reverse_compile_s"]
@@ -242,6 +289,11 @@ def main():
                         f"{row[f'forward_mode_{k}_s'] / row['forward_s']:.2f}x the forward run "
                         f"(cpu {row[f'forward_mode_{k}_cpu_s'] / row['forward_cpu_s']:.2f}x), "
                         f"derivative differs from reverse mode's by {row[f'forward_mode_{k}_rel_diff']:.1e}")
+            if "peak_rss_reverse_alone_mb" in row:
+                cpu += (f"; the gradient alone in its own process: peak {row['peak_rss_reverse_alone_mb']:.0f} MB, "
+                        f"plan {row['planned_reverse_alone_mb'] or 0:.0f} MB, {row['reverse_alone_s']:.1f} s")
+            elif "reverse_alone_error" in row:
+                cpu += f"; the gradient alone failed: {row['reverse_alone_error']}"
             print(f"{row['n_particles']:>7} {row['steps']:>6} {ck:<10} {row['forward_s']:>8.1f} "
                   f"{row['forward_p_upd_per_s']:>11.3g} {row['reverse_s']:>8.1f} "
                   f"{row['reverse_s'] / row['forward_s']:>7.2f} {row['peak_rss_mb']:>9.0f} {plan_s} "
