@@ -157,10 +157,11 @@ def _combine(a, y, b, e, moving: bool = True):
     """Shu-Osher combination a*y + b*e of the fluid particles (others keep y bit for bit);
     ``moving=False``: of q only (:func:`_euler`)."""
     f1 = (y.kind == Kind.FLUID)[:, None]
+    q = jnp.where(f1, a * y.q + b * e.q, y.q)
     if not moving:
-        return y.replace(q=jnp.where(f1, a * y.q + b * e.q, y.q))
+        return y.replace(q=q)
     return y.replace(x=jnp.where(f1, a * y.x + b * e.x, y.x), vol=jnp.where(f1[:, 0], a * y.vol + b * e.vol, y.vol),
-                     q=jnp.where(f1, a * y.q + b * e.q, y.q))
+                     q=q)
 
 
 def complete_rows_if_needed(p: Particles, scheme: Scheme, boundary):
