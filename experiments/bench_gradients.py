@@ -75,17 +75,24 @@ def _timed(fn, arg) -> tuple[float, float, object]:
     return time.perf_counter() - t0, time.process_time() - c0, val
 
 
+def _problem(n: int, steps: int, dt: float | None):
+    """The benchmarked Taylor-Green problem (n x n) and its end time (0.2, or dt * steps)."""
+    from mlsph_jax import config
+    from mlsph_jax.cases import build_problem
+
+    t_end = 0.2 if dt is None else dt * steps
+    cfg = config.load(ROOT / "configs/taylor_green_2d.toml", [f"case.n={n}", f"time.t_end={t_end!r}"])
+    return build_problem(cfg), t_end
+
+
 def alone(n: int, steps: int, checkpoint: str, dt: float | None = None) -> dict:
     """Only the gradient, compiled and run once in this process: its peak resident memory (compile
     included) without the forward program beside it (``--reverse-alone``)."""
     import jax
 
-    from mlsph_jax import config
-    from mlsph_jax.cases import build_problem
     from mlsph_jax.differentiable import make_simulate, with_param
 
-    t_end = 0.2 if dt is None else dt * steps
-    pb = build_problem(config.load(ROOT / "configs/taylor_green_2d.toml", [f"case.n={n}", f"time.t_end={t_end!r}"]))
+    pb, _ = _problem(n, steps, dt)
     sim = make_simulate(pb, n_steps=steps, checkpoint=checkpoint, record_every=1)
     mu = float(pb.params["physics.mu"])
     cg = jax.jit(jax.grad(lambda mu: sim(with_param(pb.params, "physics.mu", mu), pb.particles).series["ke"][-1]))
@@ -102,15 +109,11 @@ def child(n: int, steps: int, checkpoint: str, max_gb: float, plan_only: bool = 
     import jax
     import jax.numpy as jnp
 
-    from mlsph_jax import config
     from mlsph_jax.approximation import block_scan
-    from mlsph_jax.cases import build_problem
     from mlsph_jax.differentiable import make_simulate, with_param
     from mlsph_jax.sensitivity import value_and_grad
 
-    t_end = 0.2 if dt is None else dt * steps
-    cfg = config.load(ROOT / "configs/taylor_green_2d.toml", [f"case.n={n}", f"time.t_end={t_end!r}"])
-    pb = build_problem(cfg)
+    pb, t_end = _problem(n, steps, dt)
     if remat == "ab" and scan == "ab":
         raise SystemExit("--remat-blocks ab and --block-scan ab: compare one switch at a time")
     opts = {"on": [True], "off": [False], "ab": [False, True]}
