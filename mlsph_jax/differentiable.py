@@ -239,15 +239,18 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
         # only (integrate._euler keeps x and vol bit for bit), so the scan carries just those and
         # reads x, vol and kind from ``base``, a constant of the scan: reverse mode then stores
         # nv * 8 + 4 bytes per particle and step instead of the whole state (docs/performance.md,
-        # "What reverse mode keeps per step").  ``base`` has its mirror ghosts regenerated from
+        # "What reverse mode keeps per step").  Moving particles carry x, vol, q and ppd; their
+        # kind never changes in a run either.  ``base`` has its mirror ghosts regenerated from
         # their parents, as every step's output has.
         base = particles if bnd is None else bnd.apply(particles, params)
 
         def pack(p):
-            return p if scheme.moving else (p.q, p.ppd)
+            return (p.x, p.vol, p.q, p.ppd) if scheme.moving else (p.q, p.ppd)
 
         def unpack(c):
-            return c if scheme.moving else base.replace(q=c[0], ppd=c[1])
+            if scheme.moving:
+                return base.replace(x=c[0], vol=c[1], q=c[2], ppd=c[3])
+            return base.replace(q=c[0], ppd=c[1])
 
         carry0 = (pack(particles), jnp.asarray(0, jnp.int32), st0, failed0, bad0, acc0)
 
