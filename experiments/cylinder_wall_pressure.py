@@ -18,6 +18,15 @@ point and from the stencil cut to its face's strip (evaluation only), and the wa
 velocities of the nearest stencil particles.
 
     python experiments/cylinder_wall_pressure.py OUT [OUT ...]
+
+``--potential-flow N [N ...]`` instead: the exact potential flow past the circle set into the
+particles of ``configs/cylinder.toml`` at n_theta = N (r_far = 10 D), and the wall-normal velocity
+vn_b / U that the wall state extrapolates at the front point (exact: 0) with the linear MLS of the
+scheme, the quadratic and cubic MLS, and the linear MLS corrected by the flow's exact Hessians at
+the stencil particles, vn_b = sum_k N_k (u_k - (x_k - x_b)^T H_k (x_k - x_b) / 2) . n_b
+(docs/validation.md "Euler flow past the circle"; evaluation only).
+
+    python experiments/cylinder_wall_pressure.py --potential-flow 48 96
 """
 
 from __future__ import annotations
@@ -137,10 +146,57 @@ def wall_pressure_parts(out: str | Path) -> dict:
     return out_
 
 
+def potential_flow_velocity(x: np.ndarray, radius: float) -> np.ndarray:
+    """``[..., 2]``: the potential flow past the circle of ``radius`` at ``x[..., 2]`` (U_inf = 1)."""
+    r, th = np.hypot(x[..., 0], x[..., 1]), np.arctan2(x[..., 1], x[..., 0])
+    ur, ut = (1.0 - radius ** 2 / r ** 2) * np.cos(th), -(1.0 + radius ** 2 / r ** 2) * np.sin(th)
+    return np.stack([ur * np.cos(th) - ut * np.sin(th), ur * np.sin(th) + ut * np.cos(th)], axis=-1)
+
+
+def potential_flow_wall_velocity(n_theta: int) -> dict:
+    """vn_b / U at the front quadrature point of the exact potential flow (module docstring)."""
+    cfg = config.load(ROOT / "configs" / "cylinder.toml", [f"case.n_theta={n_theta}", "case.r_far=10.0"])
+    pb = build_problem(cfg)
+    R, walls, x = cfg["case"]["radius"], pb.boundary, np.asarray(pb.particles.x)
+    vel = potential_flow_velocity(x, R)
+    bp = walls.points(pb.params)
+    st = walls.point_stencils(pb.particles, bp.x)
+    xb, normal = np.asarray(bp.x), np.asarray(bp.normal)
+    front = int(np.argmin(np.abs(np.angle(np.exp(1j * (np.arctan2(xb[:, 1], xb[:, 0]) - math.pi))))))
+    idx, dx = np.asarray(st.idx)[front], np.asarray(st.dx)[front]
+    out = {"n_theta": n_theta, "theta_deg": math.degrees(math.atan2(xb[front, 1], xb[front, 0]) % (2 * math.pi))}
+    for deg in (1, 2, 3):
+        vals, _, _, _ = mls.operators_block(st.dx, st.mask, st.h, kernel=get_kernel(walls.kernel), degree=deg,
+                                            rcond=1e-6, derivative="fixed_centre", with_coeffs=False)
+        out[f"degree_{deg}"] = float(np.asarray(vals)[front] @ vel[idx] @ normal[front])
+        if deg == 1:
+            eps, xk, H = 1e-4, x[idx], np.zeros((len(idx), 2, 2, 2))     # H[k, component, a, b]
+            for a in range(2):
+                for b in range(2):
+                    ea, eb = np.eye(2)[a] * eps, np.eye(2)[b] * eps
+                    H[:, :, a, b] = (potential_flow_velocity(xk + ea + eb, R) - potential_flow_velocity(xk + ea - eb, R)
+                                     - potential_flow_velocity(xk - ea + eb, R)
+                                     + potential_flow_velocity(xk - ea - eb, R)) / (4 * eps * eps)
+            corrected = vel[idx] - 0.5 * np.einsum("kd,kcde,ke->kc", dx, H, dx)
+            out["degree_1_exact_hessians"] = float(np.asarray(vals)[front] @ corrected @ normal[front])
+    return out
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("runs", nargs="+", help="output directories of finished cylinder runs")
+    ap.add_argument("runs", nargs="*", help="output directories of finished cylinder runs")
+    ap.add_argument("--potential-flow", type=int, nargs="+", metavar="N_THETA",
+                    help="the exact potential flow's wall-normal velocity at the front point instead")
     args = ap.parse_args()
+    if args.potential_flow:
+        for n in args.potential_flow:
+            v = potential_flow_wall_velocity(n)
+            print(f"n_theta {n}, front point {v['theta_deg']:.2f} deg: vn_b / U linear {v['degree_1']:+.4f} "
+                  f"(C_p of rho c vn_b at M = 0.1: {20.0 * v['degree_1']:+.3f}), quadratic {v['degree_2']:+.4f}, "
+                  f"cubic {v['degree_3']:+.4f}, linear with the exact Hessians {v['degree_1_exact_hessians']:+.4f}")
+        return
+    if not args.runs:
+        ap.error("give output directories of finished cylinder runs, or --potential-flow N_THETA")
     res = {}
     for out in args.runs:
         res[str(out)] = parts = wall_pressure_parts(out)

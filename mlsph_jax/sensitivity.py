@@ -207,11 +207,23 @@ def value_and_grad(fun, mode: str, scan_blocks: bool = False):
     return vg
 
 
-def _check_wrt(params: Params, wrt: Sequence[str]):
-    allowed = param_paths(params)
+#: Parameters a run depends on only when its scheme has the term that reads them (the scheme's
+#: switch): without it the derivative is exactly zero, and a finite-difference check agrees.
+_SWITCHED = {"physics.mu": ("viscous", "the scheme has no viscous stress (physics.mu = 0, e.g. case.inviscid = true)",
+                            "a run with physics.mu > 0"),
+             "physics.kappa": ("heat_conduction", "the scheme has no heat conduction (physics.kappa = 0)",
+                               "a run with physics.kappa > 0 (or a case's Prandtl number)")}
+
+
+def _check_wrt(problem, wrt: Sequence[str]):
+    allowed = param_paths(problem.params)
     for k in wrt:
         if k not in allowed:
             raise InputError(f"invalid --wrt {k!r}; allowed: {', '.join(allowed)}")
+        if k in _SWITCHED and not getattr(problem.scheme, _SWITCHED[k][0]):
+            others = [a for a in allowed if a not in _SWITCHED or getattr(problem.scheme, _SWITCHED[a][0])]
+            raise InputError(f"invalid --wrt {k!r}: {_SWITCHED[k][1]}, so the run does not depend on it (its "
+                             f"derivative needs {_SWITCHED[k][2]}); allowed here: {', '.join(others)}")
 
 
 def sensitivity(problem, wrt: Sequence[str], of: str, check_fd: bool = False, fd_rel: float = 1e-5,
@@ -219,7 +231,7 @@ def sensitivity(problem, wrt: Sequence[str], of: str, check_fd: bool = False, fd
     """Gradient of objective ``of`` with respect to each parameter in ``wrt`` (module doc);
     ``window`` = (t_start, t_end) of a time-averaged objective (default the whole run);
     ``mode``: one of :data:`MODES` (the result's ``mode`` says which one ran)."""
-    _check_wrt(problem.params, wrt)
+    _check_wrt(problem, wrt)
     theta = {k: jnp.asarray(problem.params[k], jnp.float64) for k in wrt}
     mode = resolve_mode(mode, theta)
     simulate = _simulate_for(problem, **simulate_kw)
@@ -389,7 +401,7 @@ def calibrate(problem, fit: Sequence[str], target: Mapping[str, np.ndarray], ste
         raise InputError(f"invalid steps={steps!r}; allowed: an integer >= 0")
     if tol is not None and not (np.isfinite(tol) and tol > 0):
         raise InputError(f"invalid tol={tol!r}; allowed: a finite float > 0 (or None: run all steps)")
-    _check_wrt(problem.params, fit)
+    _check_wrt(problem, fit)
     mode = resolve_mode(mode, {k: problem.params[k] for k in fit})
     simulate = _simulate_for(problem, **simulate_kw)
     shape = jax.eval_shape(simulate, problem.params, problem.particles)

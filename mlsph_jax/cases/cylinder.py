@@ -74,7 +74,8 @@ pressure outlet); measured against each other in docs/validation.md ("Far-field 
 
 Fluid.  Ideal gas (SPEC V9 [REC]: gamma = 1.4), rho_inf = U_inf = 1, free-stream Mach number
 ``mach`` (c_inf = U_inf / M, p_inf = rho_inf c_inf^2 / gamma), mu = rho_inf U_inf D / ``re``
-(physics.mu is derived as in the cavity), by default no heat conduction (physics.kappa = 0: at M =
+(physics.mu is derived as in the cavity; ``inviscid``: mu = 0, Euler flow past a body that is then a
+no-penetration wall only, whatever ``re``), by default no heat conduction (physics.kappa = 0: at M =
 0.1 the temperature varies by O(M^2); the thesis' wall is adiabatic).  ``prandtl`` Pr > 0 derives
 physics.kappa = gamma mu / Pr (held fixed when physics.mu is differentiated, so a derivative with
 respect to mu is one at fixed kappa, not at fixed Pr); an isothermal body needs conduction.  The
@@ -219,7 +220,9 @@ BODIES = ("circle", "ellipse", *POINT_BODIES)
 
 
 def cylinder_viscosity(cfg: Mapping) -> float:
-    """mu = rho_inf U_inf D / re of a resolved ``cylinder`` config."""
+    """mu = rho_inf U_inf D / re of a resolved ``cylinder`` config (0 for ``case.inviscid``)."""
+    if cfg["case"]["inviscid"]:
+        return 0.0
     return RHO_INF * U_INF * 2.0 * cfg["case"]["radius"] / cfg["case"]["re"]
 
 
@@ -246,7 +249,8 @@ def check_cylinder(cfg: dict) -> None:
     """`eos.kind` must be ideal_gas (SPEC V9) and `scheme.method` mlsph_ale (the boundary term of
     thesis eq. 4.24 is derived for MLS shape functions), `scheme.frame` eulerian (thesis; the
     body-fitted layout is not kept by moving particles). The viscosity follows from `re`:
-    physics.mu must be 0 (derived) or equal rho_inf U_inf 2 `radius` / `re`. The far field must
+    physics.mu must be 0 (derived) or equal rho_inf U_inf 2 `radius` / `re`; with `inviscid` it
+    must be 0, and no heat conduction or isothermal body may be set. The far field must
     stay out of the body's wall stencils: `r_far` must exceed `radius` plus the wall points'
     support radius kappa beta sqrt(V_0) (V_0 the volume of a first-ring particle); otherwise the
     body is too big for the layout and overlaps the far-field rings (the set-up also checks
@@ -273,7 +277,10 @@ def check_cylinder(cfg: dict) -> None:
         problems.append(f"invalid scheme.frame={show(cfg['scheme']['frame'])}: the body-fitted layout and "
                         "the frozen far field need fixed particles; allowed: \"eulerian\"")
     mu = cylinder_viscosity(cfg)
-    if phys["mu"] != 0.0 and abs(phys["mu"] - mu) > 1e-9 * mu:
+    if c["inviscid"] and phys["mu"] != 0.0:
+        problems.append(f"invalid physics.mu={show(phys['mu'])} with case.inviscid=true: an inviscid flow has "
+                        "mu = 0; allowed: physics.mu = 0, or case.inviscid = false with case.re")
+    elif phys["mu"] != 0.0 and abs(phys["mu"] - mu) > 1e-9 * mu:
         problems.append(f"invalid physics.mu={show(phys['mu'])}: case cylinder derives the viscosity from "
                         f"case.re={show(c['re'])} (mu = rho_inf U_inf 2 case.radius / case.re = {mu:.10g}); "
                         f"allowed: 0 (derived) or {mu:.10g} — set case.re instead")
@@ -362,6 +369,14 @@ def _heat_problems(cfg: Mapping) -> list[str]:
     when `prandtl` is set, and a `wall_temperature` needs conduction (nothing silently ignored)."""
     c, phys, problems = cfg["case"], cfg["physics"], []
     kappa = cylinder_conductivity(cfg)
+    if c["inviscid"]:
+        for key, val in (("case.prandtl", c["prandtl"]), ("physics.kappa", phys["kappa"]),
+                         ("case.wall_temperature", c["wall_temperature"])):
+            if val != 0.0:
+                problems.append(f"invalid {key}={show(val)} with case.inviscid=true: an inviscid flow has no heat "
+                                f"conduction (and an isothermal body needs it); allowed: {key} = 0, or "
+                                "case.inviscid = false")
+        return problems
     if c["prandtl"] > 0.0 and phys["kappa"] != 0.0 and abs(phys["kappa"] - kappa) > 1e-9 * kappa:
         problems.append(f"invalid physics.kappa={show(phys['kappa'])}: case cylinder derives the conduction "
                         f"coefficient from case.prandtl={show(c['prandtl'])} (kappa = gamma mu / Pr = {kappa:.10g}); "
@@ -394,7 +409,12 @@ CYLINDER_KEYS: dict[str, Key] = {
     "radius": Key(float, 0.5, minimum=0.0, exclusive_minimum=True, unit="m",
                   doc="cylinder radius R (D = 2R; thesis: 0.5)"),
     "re": Key(float, 40.0, minimum=0.0, exclusive_minimum=True,
-              doc="Reynolds number rho_inf U_inf D / mu (sets physics.mu; rho_inf = U_inf = 1)"),
+              doc="Reynolds number rho_inf U_inf D / mu (sets physics.mu; rho_inf = U_inf = 1; unused with "
+                  "case.inviscid)"),
+    "inviscid": Key(bool, False,
+                    doc="Euler flow: mu = 0 (case.re unused), the body a no-penetration wall without friction "
+                        "(docs/validation.md \"Euler flow past the circle\": the exact stagnation C_p is "
+                        "1 + M^2/4 + ...)"),
     "mach": Key(float, 0.1, minimum=0.0, exclusive_minimum=True, maximum=0.5,
                 doc="free-stream Mach number U_inf / c_inf (sets p_inf = rho_inf c_inf^2 / gamma; thesis: 0.1)"),
     "n_theta": Key(int, 48, minimum=32,
@@ -694,7 +714,7 @@ def build(cfg: Mapping) -> Problem:
     def plot(out: Path, p: Particles, t: float, P) -> None:
         _, xb, normal, curve, pb, tn, nu = wall_diagnostics(p, P)     # one wall evaluation for every plot
         plot_cp(Path(out) / "cp.png", *body_cp(walls, xb, curve, pb, p_inf, q_inf), title=_title(cfg, p.n, t),
-                references=c["body"] == "circle")
+                references=c["body"] == "circle" and not c["inviscid"])
         if heated:
             plot_nu(Path(out) / "nu.png", *body_values(walls, xb, curve, nu), title=_title(cfg, p.n, t))
         if scheme.viscous:
@@ -824,7 +844,8 @@ def _title(cfg, n: int, t: float | None = None) -> str:
         when += f", {c['layout']} layout"
     if c["wall_temperature"] > 0.0:
         when += f", isothermal T_w/T_inf={c['wall_temperature']:g}"
-    return (f"cylinder (Re={c['re']:g}, M={c['mach']:g}, {c['n_theta']} on the body, {n} particles{when}): "
+    flow = "Euler" if c["inviscid"] else f"Re={c['re']:g}"
+    return (f"cylinder ({flow}, M={c['mach']:g}, {c['n_theta']} on the body, {n} particles{when}): "
             f"{s['method']}, reconstruction degree {s['reconstruction_degree']}")
 
 
