@@ -60,13 +60,14 @@ RESTART_ADDED_KEYS = {"output.series_interval": 0.0}
 RESTART_ADDED_CASE_KEYS = {
     # cylinder keys added after its first runs (2026-11-25), at the values of those runs: layouts
     # (decisions 72, 90), elliptic body (65), shedding trigger and statistics (69), far-field
-    # options (68), isothermal body (102), bodies given by points (103), offset layout (105)
+    # options (68), isothermal body (102), bodies given by points (103), offset layout (105),
+    # Euler flow (107)
     "cylinder": {"case.layout": "polar", "case.lattice_ratio": 1.0, "case.blend_radius": 2.0,
                  "case.wake_spacing": 0.1, "case.wake_length": 6.0, "case.wake_grading": 0.16,
                  "case.body": "circle", "case.aspect": 1.0, "case.alpha": 0.0, "case.perturbation": 0.0,
                  "case.perturbation_x": 1.5, "case.perturbation_core": 0.5, "case.transient": 50.0,
                  "case.far_field": "frozen", "case.prandtl": 0.0, "case.wall_temperature": 0.0,
-                 "case.body_points": [], "case.offset_rows": 3},
+                 "case.body_points": [], "case.offset_rows": 3, "case.inviscid": False},
 }
 
 
