@@ -35,10 +35,10 @@ Reverse-mode memory (``checkpoint``):
 * ``"none"``: every intermediate of every stage is stored (fastest, memory ~ steps x stages x
   the right-hand side's working set);
 * ``"step"``: ``jax.checkpoint`` around each step: only the state at every step is stored and a
-  step is recomputed during the backward pass (memory ~ steps x state; the state carried from step
-  to step is q and the MOOD degree where the frame does not move the particles, nv * 8 + 4 bytes
-  per particle in float64, the whole :class:`~mlsph_jax.state.Particles` otherwise; the records
-  are taken inside the checkpointed step and store nothing);
+  step is recomputed during the backward pass (memory ~ steps x state; what a step reads of the
+  carried state is q where the frame does not move the particles, nv * 8 bytes per particle in
+  float64, and x, vol and q otherwise; the records are taken inside the checkpointed step and
+  store nothing);
 * ``"nested"`` (default): steps are grouped into segments of ``segment`` steps (default
   ~sqrt(n_steps)); the scan over segments is checkpointed and so is each step inside, so only
   segment boundaries plus one segment of states are stored (memory ~ (steps/segment + segment)
@@ -237,20 +237,24 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
                               jnp.asarray(0, jnp.int32))
         # Fixed particles (a frame that does not move them, e.g. Eulerian): a step changes q and ppd
         # only (integrate._euler keeps x and vol bit for bit), so the scan carries just those and
-        # reads x, vol and kind from ``base``, a constant of the scan: reverse mode then stores
-        # nv * 8 + 4 bytes per particle and step instead of the whole state (docs/performance.md,
-        # "What reverse mode keeps per step").  Moving particles carry x, vol, q and ppd; their
-        # kind never changes in a run either.  ``base`` has its mirror ghosts regenerated from
-        # their parents, as every step's output has.
+        # reads x, vol and kind from ``base``, a constant of the scan.  Moving particles carry x
+        # and vol as well; their kind never changes in a run.  The per-particle degrees ppd change
+        # only under a limiter that works on them (MOOD: ``needs_high_order`` in the limiter
+        # protocol of :mod:`mlsph_jax.mood`); without one they stay the initial ones, read from
+        # ``base`` too, and MOOD resets them at every step's start, so a recomputed step never
+        # reads the carried ones.  Reverse mode then stores nv * 8 bytes per particle and step
+        # (fixed) or x, vol and q (moving) instead of the whole state (docs/performance.md, "What
+        # reverse mode keeps per step").  ``base`` has its mirror ghosts regenerated from their
+        # parents, as every step's output has.
         base = particles if bnd is None else bnd.apply(particles, params)
+        carried = (("x", "vol") if scheme.moving else ()) + ("q",) + \
+            (("ppd",) if scheme.component("limiter").needs_high_order else ())
 
         def pack(p):
-            return (p.x, p.vol, p.q, p.ppd) if scheme.moving else (p.q, p.ppd)
+            return tuple(getattr(p, f) for f in carried)
 
         def unpack(c):
-            if scheme.moving:
-                return base.replace(x=c[0], vol=c[1], q=c[2], ppd=c[3])
-            return base.replace(q=c[0], ppd=c[1])
+            return base.replace(**dict(zip(carried, c, strict=True)))
 
         carry0 = (pack(particles), jnp.asarray(0, jnp.int32), st0, failed0, bad0, acc0)
 
