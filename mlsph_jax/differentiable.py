@@ -236,9 +236,9 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
             acc0 = accumulate({n: (jnp.zeros(v.shape, v.dtype),) * 3 for n, v in shapes.items()}, particles,
                               jnp.asarray(0, jnp.int32))
         # Fixed particles (a frame that does not move them, e.g. Eulerian): a step changes q and ppd
-        # only (integrate._euler keeps x and vol bit for bit), so the scan carries just those and
-        # reads x, vol and kind from ``base``, a constant of the scan.  Moving particles carry x
-        # and vol as well; their kind never changes in a run.  The per-particle degrees ppd change
+        # only (integrate._euler keeps x and vol bit for bit), so the scan carries at most those
+        # and reads x, vol and kind from ``base``, a constant of the scan.  Moving particles carry
+        # x and vol as well; their kind never changes in a run.  The per-particle degrees ppd change
         # only under a limiter that works on them (MOOD: ``needs_high_order`` in the limiter
         # protocol of :mod:`mlsph_jax.mood`); without one they stay the initial ones, read from
         # ``base`` too, and MOOD resets them at every step's start, so a recomputed step never
