@@ -5,8 +5,11 @@ For the final state of ``mlsph run configs/cylinder.toml --out OUT`` (its ``chec
 C_p of the nearest first-ring particle, of the MLS interpolation of the particles' pressure at the
 wall (linear and quadratic, the case's own wall stencils) and of the wall pressure p* of the
 scheme (``BoundaryIntegralWalls.wall_state``: the linear wall state plus the acoustic term of the
-mirror Riemann problem, decisions 54 and 71), with the linear wall state's wall-normal velocity
-vn_b (into the wall) and the acoustic term rho_b vn_b (vn_b + |vn_b| + c_b) of p* in C_p units.
+mirror Riemann problem, decisions 54, 71 and 108), with the scheme's wall-normal velocity vn_b
+(into the wall; on no-slip walls the fit of decision 108), the linear wall state's, and the
+acoustic term rho_b vn_b (vn_b + |vn_b| + c_b) of p* in C_p units.  For viscous runs also the
+pressure drop from the front wall point to its first-ring particle against Hiemenz's
+stagnation-point flow with the run's own strain rate (:func:`hiemenz_check`).
 docs/validation.md "The front stagnation pressure".
 
 Also the pressure drag's parts: C_D,p from the scheme's wall pressure p* (the summary's
@@ -38,11 +41,12 @@ from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
+from scipy.integrate import solve_bvp
 
 from mlsph_jax import config
 from mlsph_jax.approximation import mls
 from mlsph_jax.cases import build_problem
-from mlsph_jax.cases.cylinder import RHO_INF, U_INF, free_stream
+from mlsph_jax.cases.cylinder import RHO_INF, U_INF, body_cf, free_stream
 from mlsph_jax.checkpoint import read_checkpoint
 from mlsph_jax.eos import get_eos, to_primitive
 from mlsph_jax.kernels import get_kernel
@@ -85,12 +89,14 @@ def wall_pressure_parts(out: str | Path) -> dict:
                                             rcond=sc.rcond, derivative="fixed_centre", with_coeffs=False)
         interp[deg] = np.asarray(jnp.einsum("bk,bk->b", vals, prim.p[st.idx]))
     # the scheme's own wall state (its stencils and linear weights): p*, the interpolated p_b and
-    # the wall-normal velocity into the wall
-    _, st_w, vals_w, pstar, _, _ = walls.wall_state(p, P, sc, prim)
+    # the wall-normal velocity into the wall (the scheme's, decision 108 on no-slip walls, and the
+    # linear wall state's)
+    bp_w, st_w, vals_w, pstar, tn, _ = walls.wall_state(p, P, sc, prim)
     pstar = np.asarray(pstar)
     p_w = np.asarray(jnp.einsum("bk,bk->b", vals_w, prim.p[st_w.idx]))
     vel_w = np.asarray(jnp.einsum("bk,bkd->bd", vals_w, prim.vel[st_w.idx]))
-    vn = np.sum((vel_w - np.asarray(bp.velocity)) * np.asarray(bp.normal), axis=1)
+    vn_linear = np.sum((vel_w - np.asarray(bp.velocity)) * np.asarray(bp.normal), axis=1)
+    vn = np.asarray(walls.normal_velocity(sc, bp_w, st_w, vals_w, prim.vel))
     x = np.asarray(p.x)
     fluid = np.asarray(p.kind) == 0
     D = 2.0 * cfg["case"]["radius"]
@@ -131,7 +137,8 @@ def wall_pressure_parts(out: str | Path) -> dict:
         out_["corner_points"] = [
             {"theta_deg": math.degrees(theta[b]), "x": xb[b].tolist(), "cp_interpolated": cp(p_w[b]),
              "cp_scheme": cp(pstar[b]), "acoustic_term": (float(pstar[b]) - p_w[b]) / q_inf,
-             "wall_normal_velocity": float(vn[b]), "half_space_wall_normal_velocity": float(vn_h[b]),
+             "wall_normal_velocity": float(vn[b]), "linear_wall_normal_velocity": float(vn_linear[b]),
+             "half_space_wall_normal_velocity": float(vn_h[b]),
              "face_strip_wall_normal_velocity": float(vn_s[b]),
              "face_strip_particles": int((strip[b] & np.asarray(st_w.mask)[b]).sum()),
              "nearest_particles_vn": vn_j[b, nearest[b]].tolist(),
@@ -142,8 +149,44 @@ def wall_pressure_parts(out: str | Path) -> dict:
         near = np.where(fluid)[0][np.argmin(np.sum((x[fluid] - xb[b]) ** 2, axis=1))]
         out_[name] = {"theta_deg": math.degrees(theta[b]), "first_ring_particle": cp(prim.p[near]),
                       "linear_wall": cp(interp[1][b]), "quadratic_wall": cp(interp[2][b]), "scheme_wall": cp(pstar[b]),
-                      "wall_normal_velocity": float(vn[b]), "acoustic_term": (float(pstar[b]) - p_w[b]) / q_inf}
+                      "wall_normal_velocity": float(vn[b]), "linear_wall_normal_velocity": float(vn_linear[b]),
+                      "acoustic_term": (float(pstar[b]) - p_w[b]) / q_inf}
+        if name == "front" and sc.viscous:
+            out_[name]["hiemenz"] = hiemenz_check(cfg, P, walls, bp_w, tn, q_inf, float(x[near] @ x[near]) ** 0.5
+                                                  - cfg["case"]["radius"])
+            out_[name]["hiemenz"]["scheme_wall_minus_particle"] = cp(pstar[b]) - cp(prim.p[near])
     return out_
+
+
+def hiemenz_f(eta: float) -> tuple[float, float, float]:
+    """``(f''(0), f(eta), f'(eta))`` of Hiemenz's planar stagnation-point flow, f''' + f f'' + 1 -
+    f'^2 = 0, f(0) = f'(0) = 0, f'(inf) = 1 (scipy's boundary-value solver on 0 <= eta <= 8)."""
+    e = np.linspace(0.0, 8.0, 400)
+    sol = solve_bvp(lambda _, y: np.vstack([y[1], y[2], -y[0] * y[2] - 1.0 + y[1] ** 2]),
+                    lambda a, b: np.array([a[0], a[1], b[1] - 1.0]), e,
+                    np.vstack([e, np.tanh(e), 1.0 / np.cosh(e) ** 2]), tol=1e-8)
+    return float(sol.sol(0.0)[2]), float(sol.sol(eta)[0]), float(sol.sol(eta)[1])
+
+
+def hiemenz_check(cfg, P, walls, bp, tn, q_inf: float, y1: float) -> dict:
+    """The pressure drop from the wall to the first-ring particle at the front stagnation point that
+    Hiemenz's flow predicts, p_w - p(y1) = rho a nu (f'(eta1) + f(eta1)^2 / 2), eta1 = y1 (a / nu)^(1/2)
+    (planar, so an estimate on the curved body), with the strain rate a taken from the run's own
+    skin-friction slope at the front, dC_f / ds = f''(0) mu a^(3/2) nu^(-1/2) / q_inf (least
+    squares over the quadrature points within 0.3 R of arc length from the front)."""
+    R = cfg["case"]["radius"]
+    mu = float(P["physics.mu"])
+    nu = mu / RHO_INF
+    phi, _, cf = body_cf(walls, bp.x, bp.normal, bp.curve, tn, (0.0, 0.0), (U_INF, 0.0), q_inf)
+    s = (math.pi - np.asarray(phi)) * R
+    near = s < 0.3 * R
+    slope = float(np.polyfit(s[near], np.asarray(cf)[near], 1)[0])
+    fpp0 = hiemenz_f(0.0)[0]
+    a = (slope * q_inf * math.sqrt(nu) / (fpp0 * mu)) ** (2.0 / 3.0)
+    eta1 = y1 * math.sqrt(a / nu)
+    _, f1, fp1 = hiemenz_f(eta1)
+    return {"strain_rate": a, "first_ring_distance": y1, "eta1": eta1,
+            "predicted_wall_minus_particle": RHO_INF * a * nu * (fp1 + 0.5 * f1 ** 2) / q_inf}
 
 
 def potential_flow_velocity(x: np.ndarray, radius: float) -> np.ndarray:
@@ -205,7 +248,8 @@ def main():
         for c in parts.get("corner_points", []):
             print(f"{out} next to a corner: theta {c['theta_deg']:7.2f}  p_b {c['cp_interpolated']:+.3f}  "
                   f"p* {c['cp_scheme']:+.3f}  (acoustic {c['acoustic_term']:+.3f}, vn_b "
-                  f"{c['wall_normal_velocity']:+.4f}; half-space {c['half_space_wall_normal_velocity']:+.4f}; face "
+                  f"{c['wall_normal_velocity']:+.4f}; linear state {c['linear_wall_normal_velocity']:+.4f}, on the "
+                  f"half-space {c['half_space_wall_normal_velocity']:+.4f}, on the face "
                   f"strip {c['face_strip_wall_normal_velocity']:+.4f} from {c['face_strip_particles']} particles; "
                   "nearest particles' vn " + " ".join(f"{u:+.3f}" for u in c["nearest_particles_vn"]) +
                   " at " + " ".join(f"{r:.3f}" for r in c["nearest_particles_distance"]) + ")")
@@ -215,7 +259,13 @@ def main():
             print(f"{out} {name:5s} theta {v['theta_deg']:7.2f}  particle {v['first_ring_particle']:.4f}  "
                   f"linear {v['linear_wall']:.4f}  quadratic {v['quadratic_wall']:.4f}  "
                   f"scheme p* {v['scheme_wall']:.4f}  (vn_b {v['wall_normal_velocity']:+.2e}: "
-                  f"acoustic term {v['acoustic_term']:+.4f})")
+                  f"acoustic term {v['acoustic_term']:+.4f}; linear wall state's vn_b "
+                  f"{v['linear_wall_normal_velocity']:+.2e})")
+            if "hiemenz" in v:
+                hz = v["hiemenz"]
+                print(f"{out} front wall - first-ring particle {hz['scheme_wall_minus_particle']:+.4f}, Hiemenz "
+                      f"{hz['predicted_wall_minus_particle']:+.4f} (strain a {hz['strain_rate']:.3f} U/D from the "
+                      f"skin friction, particle at {hz['first_ring_distance']:.4f} D, eta {hz['eta1']:.3f})")
     dest = ROOT / "experiments" / "output" / "cylinder_wall_pressure.json"
     dest.parent.mkdir(parents=True, exist_ok=True)
     dest.write_text(json.dumps(res, indent=2))

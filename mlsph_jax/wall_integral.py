@@ -20,7 +20,9 @@ and
   (the wall moves with its own normal velocity u_w.n_b); p* = p_b + rho_b vn (vn + |vn| + c_b)
   the pressure of the Rusanov flux between the wall state (rho, u, p, c)_b = sum_j N_j(x_b)
   (rho, u, p, c)_j and its mirror image, vn = (u_b - u_w) . n_b (SPEC §5.8's Riemann
-  alternative; it damps wall-normal acoustic modes); tau_b the viscous stress at the wall;
+  alternative; it damps wall-normal acoustic modes; on the no-slip walls of a viscous scheme vn
+  comes from the fit that holds the no-slip profile u_n = O(y^2) exactly,
+  :func:`no_slip_normal_weights`, decision 108); tau_b the viscous stress at the wall;
   adiabatic walls (the default) pass no heat; an *isothermal* wall (``wall_energy`` of
   :meth:`BoundaryIntegral.setup`: the specific internal energy e_w of the wall, Params key
   ``geometry.<name>.wall_e``, differentiable) adds the conductive flux -kappa grad(e)_b . n_b to
@@ -88,7 +90,9 @@ from .viscous import particle_flux, wall_flux
 #: (ny = 10, CFL 0.6): with the quadratic MLS the extrapolating weights N_j(x_b) make the wall
 #: terms stiff (the acoustic damping rho c vn of the wall flux exceeds SSP-RK3's stability range
 #: at CFL 0.6, and without it the wall-normal velocity grows from 1e-14 to 0.4 by t = 10); the
-#: linear MLS keeps it at round-off at CFL 0.3 and 0.6 and is exact for hydrostatic pressure.
+#: linear MLS keeps it at round-off at CFL 0.3 and 0.6 and is exact for hydrostatic pressure.  The
+#: no-slip walls' vn of decision 108 (:func:`no_slip_normal_weights`, milder weights than the linear
+#: MLS) keeps it at round-off too (max |v| / u_max 6e-15 at t = 10, CFL 0.6, ny = 10, nx = 8).
 WALL_STATE_DEGREE = 1
 
 
@@ -206,6 +210,37 @@ def constrained_gradient(st: WallStencils, u, u_wall, kernel, degree: int, rcond
     coef = jnp.linalg.solve(M, rhs)                                           # [Nb, m-1, d]
     g0 = jnp.asarray(basis.gradient_at_origin(degree, d)[1:], st.h.dtype)     # [m-1, d]
     return jnp.einsum("mc,bma->bac", g0, coef) / st.h[:, None, None]
+
+
+def no_slip_normal_weights(st: WallStencils, normal, kernel, rcond: float):
+    """Weights ``Nn[Nb, K]`` of the wall-normal velocity at a no-slip wall point: the value at x_b
+    of the weighted least-squares quadratic in the offsets *without the term linear in the
+    wall-normal coordinate* (decision 108).  At a no-slip wall the velocity relative to the wall
+    vanishes along it and (mass, div u = -(1/rho) D rho/Dt ~ 0) so does the normal derivative of
+    its normal component: u_n = O(y^2) with y the distance from the wall.  The linear wall state
+    extrapolates that profile with an O(h^2) negative intercept that the acoustic term rho c vn of
+    the mirror Riemann problem multiplies by c = U / M (docs/validation.md "Euler flow past the
+    circle"); this basis, {1, t, t^2, t y, y^2} in 2D (t tangential, from a Householder frame whose
+    first axis is n_b), reproduces u_n = a + b . t + (quadratic) exactly, so the no-slip profile
+    (also on a curved wall, whose tilt enters as t y) gives vn_b = 0 while a uniform penetration
+    V keeps its whole restoring force (vn_b = V).  Its one-sided weights extrapolate less than the
+    linear state's (4/3, -1/3 against 2, -1 on two wall-parallel rows).  Wall points whose
+    stencil cannot carry it (the pivot test of :func:`constrained_fit_degrees`, ``rcond``; the
+    corners of a box) keep the linear wall state: ``ok[Nb]`` says which carry it."""
+    nb, d = normal.shape
+    e = basis.exponents(2, d)
+    keep = np.asarray([k for k, row in enumerate(e) if not (row.sum() == 1 and row[0] == 1)])
+    e0 = jnp.zeros((d,), normal.dtype).at[0].set(1.0)
+    v = e0[None, :] + jnp.where(normal[:, :1] >= 0, 1.0, -1.0) * normal      # |v|^2 = 2 (1 + |n_0|) >= 2
+    frame = jnp.eye(d, dtype=normal.dtype) - 2.0 * v[:, :, None] * v[:, None, :] / jnp.sum(v * v, -1)[:, None, None]
+    y = jnp.einsum("bcd,bkd->bkc", frame, st.dx / st.h[:, None, None])          # y_0 = -+ n_b . xi
+    P = basis.evaluate(y, 2)[..., keep]                                          # [Nb, K, m - 1]
+    w = kernel.w_vec(st.dx, st.h[:, None]) * st.mask
+    M = jnp.einsum("bk,bkm,bkn->bmn", w, P, P)
+    ok = jnp.all(jax.vmap(lambda A: cholesky_pivots(A, rcond)[1])(jax.lax.stop_gradient(M)), axis=-1)
+    M = jnp.where(ok[:, None, None], M, jnp.eye(M.shape[-1], dtype=M.dtype))
+    a = jnp.linalg.solve(M, jnp.broadcast_to(jnp.eye(M.shape[-1], dtype=M.dtype)[0], M.shape[:2])[..., None])[..., 0]
+    return jnp.einsum("bm,bkm,bk->bk", a, P, w), ok
 
 
 #: Radius, in kernel supports of the wall point, within which particles get the first-moment
@@ -414,7 +449,7 @@ class BoundaryIntegralWalls:
                                             rcond=scheme.wall_fit_rcond, derivative="fixed_centre", with_coeffs=False)
         interp = lambda f: jnp.einsum("bk,bk...->b...", vals, f[st.idx])  # noqa: E731
         rho_b, c_b = interp(prim.rho), interp(prim.c)
-        vn = jnp.sum((interp(prim.vel) - bp.velocity) * bp.normal, axis=-1)       # into the wall
+        vn = self.normal_velocity(scheme, bp, st, vals, prim.vel)                  # into the wall
         # Rusanov flux between the interpolated state and its mirror image across the wall:
         # no mass, momentum (p + rho vn (vn + |vn| + c)) n  (SPEC §5.8, the Riemann alternative)
         pb = interp(prim.p) + rho_b * vn * (vn + jnp.abs(vn) + c_b)
@@ -426,6 +461,17 @@ class BoundaryIntegralWalls:
             d = bp.x.shape[1]
             tn = jnp.where(noslip[:, None], jnp.einsum("bad,bd->ba", D[:, 1:1 + d, :], bp.normal), 0.0)
         return bp, st, vals, pb, tn, self.heat_flux(p, params, scheme, st, prim, bp)
+
+    def normal_velocity(self, scheme, bp, st: WallStencils, vals, vel):
+        """vn_b = (u_b - u_w) . n_b ``[Nb]`` (into the wall) of the mirror Riemann problem: from the
+        linear wall state ``vals``, or on no-slip walls of a viscous scheme from the fit without the
+        linear normal term (:func:`no_slip_normal_weights`, decision 108)."""
+        vj = jnp.sum((vel[st.idx] - bp.velocity[:, None, :]) * bp.normal[:, None, :], axis=-1)   # [Nb, K]
+        vn = jnp.einsum("bk,bk->b", vals, vj)
+        if scheme.viscous and any(self.no_slip):
+            Nn, ok = no_slip_normal_weights(st, bp.normal, get_kernel(self.kernel), scheme.wall_fit_rcond)
+            vn = jnp.where(jnp.asarray(self.no_slip)[bp.curve] & ok, jnp.einsum("bk,bk->b", Nn, vj), vn)
+        return vn
 
     def wall_terms(self, p: Particles, params, geom, scheme, U, prim, w):
         """``(B[N, nv], dV[N])``: the boundary term B_i of eq. 4.24 (to subtract from d(VU)/dt)

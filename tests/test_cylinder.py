@@ -137,6 +137,66 @@ def test_viscous_rate_is_exact_for_a_quadratic_no_slip_field_in_the_wall_rows(mo
         assert err[near].max() > 1e-2, err[near].max()
 
 
+def _no_slip_wall_velocities(n_theta, *overrides):
+    """(vn_b of the scheme, vn_b of the linear wall state, vn_b of a uniform penetration V minus
+    V . n_b, spacing h, the acoustic term p* - p of the scheme's wall pressure) on the body of the
+    ``n_theta`` layout for the divergence-free no-slip field of the stream function
+    psi = (r - R)^2 sin(theta): u_r = (r - R)^2 cos(theta) / r, u_theta = -2 (r - R) sin(theta),
+    zero on the body with d u_r / dr = 0 there (exact: vn_b = 0), at uniform density and pressure."""
+    from mlsph_jax.approximation import mls
+    from mlsph_jax.eos import get_eos, to_conservative, to_primitive
+    from mlsph_jax.kernels import get_kernel
+
+    cfg, pb = _problem(f"case.n_theta={n_theta}", *overrides)
+    p, walls = pb.particles, pb.boundary
+    x = np.asarray(p.x)
+    R = cfg["case"]["radius"]
+    r, th = np.hypot(x[:, 0], x[:, 1]), np.arctan2(x[:, 1], x[:, 0])
+    ur, ut = (r - R) ** 2 * np.cos(th) / r, -2.0 * (r - R) * np.sin(th)
+    vel = jnp.asarray(np.stack([ur * np.cos(th) - ut * np.sin(th), ur * np.sin(th) + ut * np.cos(th)], 1))
+    bp = walls.points(pb.params)
+    st = walls.point_stencils(p, bp.x)
+    vals = mls.operators_block(st.dx, st.mask, st.h, kernel=get_kernel(walls.kernel), degree=1,
+                               rcond=pb.scheme.wall_fit_rcond, derivative="fixed_centre", with_coeffs=False)[0]
+    vn = np.asarray(walls.normal_velocity(pb.scheme, bp, st, vals, vel))
+    vj = np.einsum("bkd,bd->bk", np.asarray(vel)[np.asarray(st.idx)], np.asarray(bp.normal))
+    linear = np.einsum("bk,bk->b", np.asarray(vals), vj)
+    V = np.array([0.3, -0.2])
+    pen = np.asarray(walls.normal_velocity(pb.scheme, bp, st, vals, jnp.broadcast_to(jnp.asarray(V), vel.shape)))
+    # the scheme's wall pressure for the same state (uniform rho and p: p* - p is the acoustic term)
+    eos = get_eos(pb.scheme.eos)
+    U = to_conservative(jnp.ones(len(x)), vel, jnp.full(len(x), 71.4), eos, pb.params)
+    p = p.replace(q=p.vol[:, None] * U)
+    _, _, _, pstar, _, _ = walls.wall_state(p, pb.params, pb.scheme, to_primitive(U, eos, pb.params))
+    return vn, linear, pen - np.asarray(bp.normal) @ V, float(np.median(np.asarray(st.h))), np.asarray(pstar) - 71.4
+
+
+def test_no_slip_wall_normal_velocity_vanishes_for_a_no_slip_profile_and_keeps_a_penetration():
+    """Decision 108: on a no-slip body the wall-normal velocity of the mirror Riemann problem
+    (whose acoustic term rho c vn_b the wall pressure carries) comes from the fit without the term
+    linear in the wall-normal coordinate.  For a divergence-free field that vanishes on the body
+    (u_n = O(y^2)) it is far below the linear wall state's O(h^2) intercept and converges faster,
+    and the scheme's wall pressure p* carries it (its acoustic term is that of the new vn_b, far
+    below that of the linear state's); a uniform penetration V keeps its whole restoring force
+    (vn_b = V . n_b to round-off).  An inviscid scheme (a wall without friction: u_n = a y is its
+    profile) keeps the linear wall state.  Measured: max |vn_b| 8.9e-5 (linear 3.4e-3) at n_theta
+    = 48, 1.4e-5 (1.3e-3) at 96: order 2.6 against 1.4."""
+    vn48, lin48, pen48, h48, ac48 = _no_slip_wall_velocities(48)
+    vn96, lin96, pen96, h96, _ = _no_slip_wall_velocities(96)
+    for pen in (pen48, pen96):
+        assert np.abs(pen).max() <= 1e-13
+    assert np.abs(vn48).max() <= 0.05 * np.abs(lin48).max()
+    assert np.abs(vn96).max() <= 0.02 * np.abs(lin96).max()
+    order = math.log(np.abs(vn48).max() / np.abs(vn96).max()) / math.log(h48 / h96)
+    assert order >= 2.3, order
+    # p* - p = rho vn (vn + |vn| + c) with c = sqrt(1.4 * 71.4) at rho = 1: the new vn_b, not the linear one
+    c = math.sqrt(1.4 * 71.4)
+    np.testing.assert_allclose(ac48, vn48 * (vn48 + np.abs(vn48) + c), rtol=1e-9, atol=1e-12)
+    assert np.abs(ac48).max() <= 0.05 * c * np.abs(lin48).max()
+    vn_e, lin_e, _, _, _ = _no_slip_wall_velocities(48, "case.inviscid=true")
+    np.testing.assert_allclose(vn_e, lin_e, rtol=0, atol=1e-15)
+
+
 def test_inviscid_body_is_a_wall_without_friction():
     """`case.inviscid`: mu = 0, no diffusive flux, and the body's force on the impulsively started
     stream is its pressure part alone; the same state with the default viscosity has a viscous
@@ -429,17 +489,17 @@ def test_one_sided_first_ring_fits_fall_back_by_the_wall_threshold():
 def test_builtin_config_meets_the_re40_targets():
     """configs/cylinder.toml as shipped (n_theta = 48, far field at 40 D, local time steps to the
     steady state) against issue 17's Re = 40 targets: C_D within 3 % of 1.56, C_p front within 4 %
-    of 1.18, base within 8 % of -0.51, L_w / D within 10 % of 2.3 (about 14 min on 2 shared
-    cores at load 7).  Measured (docs/validation.md "The front stagnation pressure", cubic
-    reconstruction, first ring quadratic since decisions 75 and 77): steady at t = 20, C_D 1.522 and C_p base -0.521
-    meet their targets; C_p front 1.066 and L_w / D 1.74 do not (the wake and the stagnation peak
-    are under-resolved at n_theta = 48): C_D must meet its target; the others are reported as an expected failure
-    with the measured values (and the test passes once they are met)."""
+    of 1.18, base within 8 % of -0.51, L_w / D within 10 % of 2.3 (about 3 min alone, 14 min on 2
+    shared cores at load 7).  Measured (docs/validation.md "The no-slip wall's normal velocity",
+    2026-12-06): steady at t = 20, C_D 1.5423, C_p front 1.1413 (1.066 before decision 108), C_p
+    base -0.5093 meet their targets; L_w / D 1.73 does not (the wake is under-resolved at n_theta =
+    48; 2.215 at the thesis' 120): it is reported as an expected failure with the measured value
+    (and the test passes once it is met)."""
     cfg = config_mod.load(CONFIG_DIR / "cylinder.toml", ["output.plots=false", "output.progress=false"])
     s = run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True).summary
     assert s["steady_state"]["converged"], s["steady_state"]
     m = s["metrics"]
-    wake = ("cp_front", "cp_base", "recirculation_length")
+    wake = ("recirculation_length",)
     assert set(wake) < set(RE40_TARGETS)
     for key, (value, tol) in RE40_TARGETS.items():
         if key not in wake:
@@ -447,7 +507,7 @@ def test_builtin_config_meets_the_re40_targets():
     missed = {k: (m[k], RE40_TARGETS[k]) for k in wake
               if abs(m[k] - RE40_TARGETS[k][0]) > RE40_TARGETS[k][1] * abs(RE40_TARGETS[k][0])}
     if missed:
-        pytest.xfail(f"C_p front / wake targets missed at the default n_theta = 48 (issue 17 open): {missed}")
+        pytest.xfail(f"recirculation length missed at the default n_theta = 48 (issue 17 open): {missed}")
 
 
 @pytest.mark.slow
@@ -475,25 +535,28 @@ def test_inviscid_stagnation_pressure_converges_to_the_isentropic_value():
 @pytest.mark.slow
 def test_heated_body_nusselt_number_at_re40():
     """The built-in config (48 points on the body, Re = 40, Mach 0.1) with Pr = 0.72 and the body
-    1 % hotter, then 1 % colder than the free stream (~5 min each idle; docs/validation.md "The
-    heated cylinder").  Each run's heat is h (T_w - T_aw): the hot run's Nu (based on T_w - T_inf)
-    is low and the cold run's high by the recovery temperature T_aw - T_inf ~ r (gamma - 1) M^2 / 2
-    T_inf (0.0017 T_inf for r = Pr^1/2), and the pair's mean is h D / k.  Measured: 2.865 / 3.940,
-    pair 3.402, T_aw / T_inf 1.00158 (Churchill-Bernstein 3.399, Hilpert 3.415; 80 points on the
-    body give the pair 3.306, -2.8 %).  Bounds: the pair within 6 % of Churchill-Bernstein
-    (the resolution change and margin; the correlations scatter ~20 %), the recovery temperature
-    between r = 0.6 and 1.5 of the theory's (gamma - 1) M^2 / 2, the adiabatic C_D kept to 0.1 %
-    (measured +0.05 % / +0.005 %), the local Nu at the front above 1.4 x the mean in each run
-    (measured 1.54 hot, where the recovery temperature lowers the front, and 1.98 cold)."""
+    1 % hotter, then 1 % colder than the free stream, and adiabatic (~3 min each idle;
+    docs/validation.md "The heated cylinder").  Each run's heat is h (T_w - T_aw): the hot run's
+    Nu (based on T_w - T_inf) is low and the cold run's high by the recovery temperature
+    T_aw - T_inf ~ r (gamma - 1) M^2 / 2 T_inf (0.0017 T_inf for r = Pr^1/2), and the pair's mean
+    is h D / k.  Measured (since decision 108, 2026-12-06): 2.856 / 3.938, pair 3.397, T_aw / T_inf
+    1.00159 (Churchill-Bernstein 3.399, Hilpert 3.415; before decision 108 2.865 / 3.940, and 80
+    points on the body gave the pair 3.306, -2.8 %).  Bounds: the pair within 6 % of
+    Churchill-Bernstein (the resolution change and margin; the correlations scatter ~20 %), the
+    recovery temperature between r = 0.6 and 1.5 of the theory's (gamma - 1) M^2 / 2, the
+    adiabatic run's C_D kept to 0.1 % (measured +0.03 % / +0.01 %), the local Nu at the front
+    above 1.4 x the mean in each run (measured 1.55 hot, where the recovery temperature lowers the
+    front, and 1.95 cold)."""
     from mlsph_jax.reference.cylinder import nusselt_churchill_bernstein
 
     runs = {}
-    for ratio in (1.01, 0.99):
-        cfg = config_mod.load(CONFIG_DIR / "cylinder.toml", ["case.prandtl=0.72", f"case.wall_temperature={ratio}",
-                                                             "output.plots=false", "output.progress=false"])
+    for ratio in (1.01, 0.99, None):
+        heat = [] if ratio is None else ["case.prandtl=0.72", f"case.wall_temperature={ratio}"]
+        cfg = config_mod.load(CONFIG_DIR / "cylinder.toml", [*heat, "output.plots=false", "output.progress=false"])
         s = run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True).summary
         assert s["steady_state"]["converged"], s["steady_state"]
         runs[ratio] = s["metrics"]
+    adiabatic = runs.pop(None)["cd"]
     nu_hot, nu_cold = runs[1.01]["nusselt"], runs[0.99]["nusselt"]
     nu = 0.5 * (nu_hot + nu_cold)
     recovery = 0.01 * (nu_cold - nu_hot) / (nu_cold + nu_hot)          # T_aw / T_inf - 1
@@ -502,4 +565,4 @@ def test_heated_body_nusselt_number_at_re40():
     assert abs(nu / nusselt_churchill_bernstein(40.0, 0.72) - 1.0) <= 0.06, (nu_hot, nu_cold, nu)
     assert 0.6 * theory < recovery < 1.5 * theory, recovery
     for m in runs.values():
-        assert m["cd"] == pytest.approx(1.5216, rel=1e-3) and m["nusselt_front"] > 1.4 * m["nusselt"]
+        assert m["cd"] == pytest.approx(adiabatic, rel=1e-3) and m["nusselt_front"] > 1.4 * m["nusselt"]

@@ -459,9 +459,10 @@ the 100 x 100 run must do at least as well as the measured 50 x 50 one (bounds: 
 def test_boundary_integral_walls_re100_no_worse_than_mirror_ghosts():
     """Issue 17's target for the cavity: the built-in config (40 x 40, Re = 100, cubic) with
     boundary-integral walls deviates from Ghia no more than with mirror ghosts (measured, ghosts:
-    max |u - Ghia| 0.0087, max |v - Ghia| 0.0065; boundary integral: 0.0071, 0.0047, steady at
-    t = 9; 18-20 min on 2 contended cores).  Both measured without Thornber's correction (the
-    config's since 2026-11-26), so the walls are compared at that scheme."""
+    max |u - Ghia| 0.0087, max |v - Ghia| 0.0065; boundary integral: 0.0056, 0.0040 since decision
+    108, 0.0071, 0.0047 before, steady at t = 9; 4 min idle, 18-20 min on 2 contended cores).
+    Both measured without Thornber's correction (the config's since 2026-11-26), so the walls are
+    compared at that scheme."""
     cfg = config.load(CFG, [*QUIET, "case.walls=boundary_integral", 'scheme.low_mach_reconstruction="none"'])
     r = run_problem(build_problem(cfg), cfg, out_dir=None, quiet=True)
     m = r.summary["metrics"]

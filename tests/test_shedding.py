@@ -259,7 +259,9 @@ def test_builtin_re100_config_sheds_and_meets_table_4_2():
     amplitude 0.33 +- 10 %, St 0.165 +- 3 %) a missed target is reported as an expected failure
     with the measured values.  Measured with rcond 0.01, before decision 75 (docs/validation.md
     "Vortex shedding"; 21,011 steps, 28.6 min at load 3.4-5.8): 6 periods, drift 2.5 %, St 0.1407,
-    mean C_D 1.2455, C_L amplitude 0.1960: all three missed (the wake at n_theta = 48 behaves like Re ~ 70)."""
+    mean C_D 1.2455, C_L amplitude 0.1960: all three missed (the wake at n_theta = 48 behaves like Re ~ 70).
+    Since decision 108 (2026-12-06, 13 min): 6 periods, drift 2.4 %, St 0.1411, mean C_D 1.2608, C_L
+    amplitude 0.1990: still all three missed."""
     m = _builtin_shedding_metrics("cylinder_re100")
     _xfail_missed_targets(m, RE100_TARGETS, "at n_theta = 48")
 
@@ -275,8 +277,8 @@ def test_builtin_re185_config_sheds_and_meets_table_4_2():
     t_end = 150, statistics over the whole lift periods after t = 100): the wake sheds (>= 5 whole
     periods, amplitude settled to 5 %); against Table 4.2 (St 0.1937 +- 3 %, mean C_D 1.3398 +- 3 %,
     C_L rms 0.4447 +- 10 %) a missed target is reported as an expected failure with the measured
-    values.  Measured (docs/validation.md "Re = 185"; 2026-11-27, 21,619 steps, 11.7 min at load
-    1.4-3.3): 7 periods, drift 0.02 %, St 0.1633, mean C_D 1.1888, C_L rms 0.2439: all three missed
-    (-15.7 %, -11.3 %, -45.1 %; at n_theta = 80 C_D and C_L rms are met)."""
+    values.  Measured (docs/validation.md "The no-slip wall's normal velocity"; 2026-12-06, 21,619
+    steps, 10 min): 7 periods, drift 0.02 %, St 0.1638, mean C_D 1.2091, C_L rms 0.2524: all three
+    missed (-15.4 %, -9.8 %, -43.2 %; at n_theta = 80 C_D and C_L rms were met before decision 108)."""
     m = _builtin_shedding_metrics("cylinder_re185")
     _xfail_missed_targets(m, RE185_TARGETS, "at n_theta = 48")
