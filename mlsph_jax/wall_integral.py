@@ -221,12 +221,15 @@ def no_slip_normal_weights(st: WallStencils, normal, kernel, rcond: float):
     extrapolates that profile with an O(h^2) negative intercept that the acoustic term rho c vn of
     the mirror Riemann problem multiplies by c = U / M (docs/validation.md "Euler flow past the
     circle"); this basis, {1, t, t^2, t y, y^2} in 2D (t tangential, from a Householder frame whose
-    first axis is n_b), reproduces u_n = a + b . t + (quadratic) exactly, so the no-slip profile
-    (also on a curved wall, whose tilt enters as t y) gives vn_b = 0 while a uniform penetration
-    V keeps its whole restoring force (vn_b = V).  Its one-sided weights extrapolate less than the
-    linear state's (4/3, -1/3 against 2, -1 on two wall-parallel rows).  Wall points whose
-    stencil cannot carry it (the pivot test of :func:`constrained_fit_degrees`, ``rcond``; the
-    corners of a box) keep the linear wall state: ``ok[Nb]`` says which carry it."""
+    first axis is n_b), reproduces u_n = a + b . t + (quadratic) exactly, so a quadratic no-slip
+    profile gives vn_b = 0 (on a curved wall, whose tilt enters as t y, the error of a smooth
+    no-slip field converges at order ~2.6 on the polar layout; the linear state's at ~1.4) while
+    a uniform penetration V keeps its whole restoring force (vn_b = V).  Its one-sided weights
+    extrapolate less than the linear state's (4/3, -1/3 against 2, -1 on rows at h and 2h from
+    the wall).  The premise needs D rho/Dt ~ 0 at the wall: in an acoustic transient part of a
+    linear u_n reads as a penetration.  Wall points whose stencil cannot carry the fit (the pivot
+    test of :func:`constrained_fit_degrees`, ``rcond``; none on the shipped layouts, the cavity's
+    corners included) keep the linear wall state: ``ok[Nb]`` says which carry it."""
     nb, d = normal.shape
     e = basis.exponents(2, d)
     keep = np.asarray([k for k, row in enumerate(e) if not (row.sum() == 1 and row[0] == 1)])
