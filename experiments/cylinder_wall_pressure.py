@@ -30,11 +30,18 @@ the stencil particles, vn_b = sum_k N_k (u_k - (x_k - x_b)^T H_k (x_k - x_b) / 2
 (docs/validation.md "Euler flow past the circle"; evaluation only).
 
     python experiments/cylinder_wall_pressure.py --potential-flow 48 96
+
+``--hiemenz N [N ...]``: the same with Hiemenz's viscous stagnation-point flow (no penetration,
+u_n = O(y^2) at the body) and the scheme's vn_b on the no-slip body (decision 108) beside the
+linear wall state's (docs/validation.md "The no-slip wall's normal velocity").
+
+    python experiments/cylinder_wall_pressure.py --hiemenz 48 96
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 from pathlib import Path
@@ -158,14 +165,20 @@ def wall_pressure_parts(out: str | Path) -> dict:
     return out_
 
 
-def hiemenz_f(eta: float) -> tuple[float, float, float]:
-    """``(f''(0), f(eta), f'(eta))`` of Hiemenz's planar stagnation-point flow, f''' + f f'' + 1 -
-    f'^2 = 0, f(0) = f'(0) = 0, f'(inf) = 1 (scipy's boundary-value solver on 0 <= eta <= 8)."""
+@functools.cache
+def _hiemenz_solution():
     e = np.linspace(0.0, 8.0, 400)
-    sol = solve_bvp(lambda _, y: np.vstack([y[1], y[2], -y[0] * y[2] - 1.0 + y[1] ** 2]),
-                    lambda a, b: np.array([a[0], a[1], b[1] - 1.0]), e,
-                    np.vstack([e, np.tanh(e), 1.0 / np.cosh(e) ** 2]), tol=1e-8)
-    return float(sol.sol(0.0)[2]), float(sol.sol(eta)[0]), float(sol.sol(eta)[1])
+    return solve_bvp(lambda _, y: np.vstack([y[1], y[2], -y[0] * y[2] - 1.0 + y[1] ** 2]),
+                     lambda a, b: np.array([a[0], a[1], b[1] - 1.0]), e,
+                     np.vstack([e, np.tanh(e), 1.0 / np.cosh(e) ** 2]), tol=1e-8).sol
+
+
+def hiemenz_f(eta):
+    """``(f''(0), f(eta), f'(eta))`` of Hiemenz's planar stagnation-point flow, f''' + f f'' + 1 -
+    f'^2 = 0, f(0) = f'(0) = 0, f'(inf) = 1 (scipy's boundary-value solver on 0 <= eta <= 8, solved
+    once); ``eta`` a number or an array."""
+    sol = _hiemenz_solution()
+    return float(sol(0.0)[2]), sol(eta)[0], sol(eta)[1]
 
 
 def hiemenz_check(cfg, P, walls, bp, tn, q_inf: float, y1: float) -> dict:
@@ -225,12 +238,53 @@ def potential_flow_wall_velocity(n_theta: int) -> dict:
     return out
 
 
+def hiemenz_wall_velocity(n_theta: int, strain: float = 2.9) -> dict:
+    """vn_b / U at the front quadrature point of Hiemenz's stagnation-point flow set into the
+    particles of ``configs/cylinder.toml`` at n_theta = N (r_far = 10 D, nu = D U / 40): u_r =
+    -(a nu)^(1/2) f(eta), u_theta = a R phi f'(eta), eta = (r - R) (a / nu)^(1/2), phi the angle
+    from the front, a = ``strain`` (2.9 U / D, the runs' own, ``hiemenz_check``).  No penetration
+    (exact: vn_b = 0): the scheme's vn_b (decision 108's fit on the no-slip body) and the linear
+    wall state's are the closures' truncation on a boundary layer the stencil only partly resolves;
+    also how far the stencil reaches into it (eta)."""
+    cfg = config.load(ROOT / "configs" / "cylinder.toml", [f"case.n_theta={n_theta}", "case.r_far=10.0"])
+    pb = build_problem(cfg)
+    R, walls, p = cfg["case"]["radius"], pb.boundary, pb.particles
+    nu = float(pb.params["physics.mu"]) / RHO_INF
+    x = np.asarray(p.x)
+    r, th = np.hypot(x[:, 0], x[:, 1]), np.arctan2(x[:, 1], x[:, 0])
+    phi = np.angle(np.exp(1j * (th - math.pi)))
+    eta = np.minimum(np.maximum(r - R, 0.0) / math.sqrt(nu / strain), 8.0)
+    _, f, fp = hiemenz_f(eta)
+    ur, ut = -math.sqrt(strain * nu) * f, strain * R * phi * fp
+    vel = jnp.asarray(np.stack([ur * np.cos(th) - ut * np.sin(th), ur * np.sin(th) + ut * np.cos(th)], 1))
+    bp = walls.points(pb.params)
+    st = walls.point_stencils(p, bp.x)
+    vals = mls.operators_block(st.dx, st.mask, st.h, kernel=get_kernel(walls.kernel), degree=1,
+                               rcond=pb.scheme.wall_fit_rcond, derivative="fixed_centre", with_coeffs=False)[0]
+    vn = np.asarray(walls.normal_velocity(pb.scheme, bp, st, vals, vel))
+    xb, normal = np.asarray(bp.x), np.asarray(bp.normal)
+    front = int(np.argmin(np.abs(np.angle(np.exp(1j * (np.arctan2(xb[:, 1], xb[:, 0]) - math.pi))))))
+    vj = np.asarray(vel)[np.asarray(st.idx)[front]] @ normal[front]
+    reach = float(np.max(np.where(np.asarray(st.mask)[front], -np.asarray(st.dx)[front] @ normal[front], 0.0)))
+    return {"n_theta": n_theta, "scheme": float(vn[front]), "linear": float(np.asarray(vals)[front] @ vj),
+            "stencil_reach_eta": reach / math.sqrt(nu / strain)}
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("runs", nargs="*", help="output directories of finished cylinder runs")
     ap.add_argument("--potential-flow", type=int, nargs="+", metavar="N_THETA",
                     help="the exact potential flow's wall-normal velocity at the front point instead")
+    ap.add_argument("--hiemenz", type=int, nargs="+", metavar="N_THETA",
+                    help="Hiemenz's stagnation-point flow's wall-normal velocity at the front point instead")
     args = ap.parse_args()
+    if args.hiemenz:
+        for n in args.hiemenz:
+            v = hiemenz_wall_velocity(n)
+            print(f"n_theta {n}, Hiemenz flow (a = 2.9 U/D): front vn_b / U of the scheme {v['scheme']:+.2e}, "
+                  f"of the linear wall state {v['linear']:+.2e} (exact 0; the stencil reaches eta "
+                  f"{v['stencil_reach_eta']:.2f})")
+        return
     if args.potential_flow:
         for n in args.potential_flow:
             v = potential_flow_wall_velocity(n)
