@@ -278,22 +278,22 @@ def main():
     ap.add_argument("--hiemenz", type=int, nargs="+", metavar="N_THETA",
                     help="Hiemenz's stagnation-point flow's wall-normal velocity at the front point instead")
     args = ap.parse_args()
-    if args.hiemenz:
-        for n in args.hiemenz:
-            v = hiemenz_wall_velocity(n)
-            print(f"n_theta {n}, Hiemenz flow (a = 2.9 U/D): front vn_b / U of the scheme {v['scheme']:+.2e}, "
-                  f"of the linear wall state {v['linear']:+.2e} (exact 0; the stencil reaches eta "
-                  f"{v['stencil_reach_eta']:.2f})")
-        return
-    if args.potential_flow:
-        for n in args.potential_flow:
-            v = potential_flow_wall_velocity(n)
-            print(f"n_theta {n}, front point {v['theta_deg']:.2f} deg: vn_b / U linear {v['degree_1']:+.4f} "
-                  f"(C_p of rho c vn_b at M = 0.1: {20.0 * v['degree_1']:+.3f}), quadratic {v['degree_2']:+.4f}, "
-                  f"cubic {v['degree_3']:+.4f}, linear with the exact Hessians {v['degree_1_exact_hessians']:+.4f}")
+    # the exact flows set into the particles: (n_theta list, evaluation, line printed)
+    exact = [(args.hiemenz, hiemenz_wall_velocity, lambda n, v: (
+                 f"n_theta {n}, Hiemenz flow (a = 2.9 U/D): front vn_b / U of the scheme {v['scheme']:+.2e}, of "
+                 f"the linear wall state {v['linear']:+.2e} (exact 0; the stencil reaches eta "
+                 f"{v['stencil_reach_eta']:.2f})")),
+             (args.potential_flow, potential_flow_wall_velocity, lambda n, v: (
+                 f"n_theta {n}, front point {v['theta_deg']:.2f} deg: vn_b / U linear {v['degree_1']:+.4f} "
+                 f"(C_p of rho c vn_b at M = 0.1: {20.0 * v['degree_1']:+.3f}), quadratic {v['degree_2']:+.4f}, "
+                 f"cubic {v['degree_3']:+.4f}, linear with the exact Hessians {v['degree_1_exact_hessians']:+.4f}"))]
+    for sizes, evaluate, line in exact:
+        for n in sizes or ():
+            print(line(n, evaluate(n)))
+    if args.hiemenz or args.potential_flow:
         return
     if not args.runs:
-        ap.error("give output directories of finished cylinder runs, or --potential-flow N_THETA")
+        ap.error("give output directories of finished cylinder runs, or --potential-flow / --hiemenz N_THETA")
     res = {}
     for out in args.runs:
         res[str(out)] = parts = wall_pressure_parts(out)
