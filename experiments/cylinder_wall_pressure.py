@@ -257,10 +257,7 @@ def hiemenz_wall_velocity(n_theta: int, strain: float = 2.9) -> dict:
     _, f, fp = hiemenz_f(eta)
     ur, ut = -math.sqrt(strain * nu) * f, strain * R * phi * fp
     vel = jnp.asarray(np.stack([ur * np.cos(th) - ut * np.sin(th), ur * np.sin(th) + ut * np.cos(th)], 1))
-    bp = walls.points(pb.params)
-    st = walls.point_stencils(p, bp.x)
-    vals = mls.operators_block(st.dx, st.mask, st.h, kernel=get_kernel(walls.kernel), degree=1,
-                               rcond=pb.scheme.wall_fit_rcond, derivative="fixed_centre", with_coeffs=False)[0]
+    bp, st, vals = walls.state_weights(p, pb.params, pb.scheme)
     vn = np.asarray(walls.normal_velocity(pb.scheme, bp, st, vals, vel))
     xb, normal = np.asarray(bp.x), np.asarray(bp.normal)
     front = int(np.argmin(np.abs(np.angle(np.exp(1j * (np.arctan2(xb[:, 1], xb[:, 0]) - math.pi))))))

@@ -445,11 +445,8 @@ class BoundaryIntegralWalls:
     def wall_state(self, p: Particles, params, scheme, prim):
         """``(points, stencils, N_j(x_b)[Nb, K], p_b[Nb], tau_b n_b [Nb, d], q_b[Nb])`` for a state,
         q_b = kappa grad(e)_b . n_b the conductive flux of isothermal walls (:meth:`heat_flux`)."""
-        bp = self.points(params)
-        st = self.point_stencils(p, bp.x)
+        bp, st, vals = self.state_weights(p, params, scheme)
         kern = get_kernel(self.kernel)
-        vals, _, _, _ = mls.operators_block(st.dx, st.mask, st.h, kernel=kern, degree=WALL_STATE_DEGREE,
-                                            rcond=scheme.wall_fit_rcond, derivative="fixed_centre", with_coeffs=False)
         interp = lambda f: jnp.einsum("bk,bk...->b...", vals, f[st.idx])  # noqa: E731
         rho_b, c_b = interp(prim.rho), interp(prim.c)
         vn = self.normal_velocity(scheme, bp, st, vals, prim.vel)                  # into the wall
@@ -464,6 +461,16 @@ class BoundaryIntegralWalls:
             d = bp.x.shape[1]
             tn = jnp.where(noslip[:, None], jnp.einsum("bad,bd->ba", D[:, 1:1 + d, :], bp.normal), 0.0)
         return bp, st, vals, pb, tn, self.heat_flux(p, params, scheme, st, prim, bp)
+
+    def state_weights(self, p: Particles, params, scheme):
+        """``(points, stencils, N_j(x_b)[Nb, K])``: the wall points, their stencils and the weights of
+        the linear wall state (:data:`WALL_STATE_DEGREE`, fixed-centre MLS at x_b)."""
+        bp = self.points(params)
+        st = self.point_stencils(p, bp.x)
+        vals, _, _, _ = mls.operators_block(st.dx, st.mask, st.h, kernel=get_kernel(self.kernel),
+                                            degree=WALL_STATE_DEGREE, rcond=scheme.wall_fit_rcond,
+                                            derivative="fixed_centre", with_coeffs=False)
+        return bp, st, vals
 
     def normal_velocity(self, scheme, bp, st: WallStencils, vals, vel):
         """vn_b = (u_b - u_w) . n_b ``[Nb]`` (into the wall) of the mirror Riemann problem: from the

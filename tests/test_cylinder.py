@@ -143,9 +143,7 @@ def _no_slip_wall_velocities(n_theta, *overrides):
     ``n_theta`` layout for the divergence-free no-slip field of the stream function
     psi = (r - R)^2 sin(theta): u_r = (r - R)^2 cos(theta) / r, u_theta = -2 (r - R) sin(theta),
     zero on the body with d u_r / dr = 0 there (exact: vn_b = 0), at uniform density and pressure."""
-    from mlsph_jax.approximation import mls
     from mlsph_jax.eos import get_eos, to_conservative, to_primitive
-    from mlsph_jax.kernels import get_kernel
 
     cfg, pb = _problem(f"case.n_theta={n_theta}", *overrides)
     p, walls = pb.particles, pb.boundary
@@ -154,10 +152,7 @@ def _no_slip_wall_velocities(n_theta, *overrides):
     r, th = np.hypot(x[:, 0], x[:, 1]), np.arctan2(x[:, 1], x[:, 0])
     ur, ut = (r - R) ** 2 * np.cos(th) / r, -2.0 * (r - R) * np.sin(th)
     vel = jnp.asarray(np.stack([ur * np.cos(th) - ut * np.sin(th), ur * np.sin(th) + ut * np.cos(th)], 1))
-    bp = walls.points(pb.params)
-    st = walls.point_stencils(p, bp.x)
-    vals = mls.operators_block(st.dx, st.mask, st.h, kernel=get_kernel(walls.kernel), degree=1,
-                               rcond=pb.scheme.wall_fit_rcond, derivative="fixed_centre", with_coeffs=False)[0]
+    bp, st, vals = walls.state_weights(p, pb.params, pb.scheme)
     vn = np.asarray(walls.normal_velocity(pb.scheme, bp, st, vals, vel))
     vj = np.einsum("bkd,bd->bk", np.asarray(vel)[np.asarray(st.idx)], np.asarray(bp.normal))
     linear = np.einsum("bk,bk->b", np.asarray(vals), vj)
