@@ -26,8 +26,9 @@ velocities of the nearest stencil particles.
 particles of ``configs/cylinder.toml`` at n_theta = N (r_far = 10 D), and the wall-normal velocity
 vn_b / U that the wall state extrapolates at the front point (exact: 0) with the linear MLS of the
 scheme, the quadratic and cubic MLS, and the linear MLS corrected by the flow's exact Hessians at
-the stencil particles, vn_b = sum_k N_k (u_k - (x_k - x_b)^T H_k (x_k - x_b) / 2) . n_b
-(docs/validation.md "Euler flow past the circle"; evaluation only).
+the stencil particles, vn_b = sum_k N_k (u_k - (x_k - x_b)^T H_k (x_k - x_b) / 2) . n_b, and the
+scheme's own vn_b on the body of an inviscid run (``case.inviscid``: the quadratic MLS of decision
+109) (docs/validation.md "Euler flow past the circle"; evaluation only).
 
     python experiments/cylinder_wall_pressure.py --potential-flow 48 96
 
@@ -235,6 +236,14 @@ def potential_flow_wall_velocity(n_theta: int) -> dict:
                                      + potential_flow_velocity(xk - ea - eb, R)) / (4 * eps * eps)
             corrected = vel[idx] - 0.5 * np.einsum("kd,kcde,ke->kc", dx, H, dx)
             out["degree_1_exact_hessians"] = float(np.asarray(vals)[front] @ corrected @ normal[front])
+    # the scheme's own vn_b on the body of an inviscid run (`case.inviscid`, a wall without
+    # friction: the quadratic MLS of decision 109)
+    cfg_e = config.load(ROOT / "configs" / "cylinder.toml", [f"case.n_theta={n_theta}", "case.r_far=10.0",
+                                                             "case.inviscid=true"])
+    pe = build_problem(cfg_e)
+    bp_e, st_e, vals_e = pe.boundary.state_weights(pe.particles, pe.params, pe.scheme)
+    vn_e = pe.boundary.normal_velocity(pe.scheme, bp_e, st_e, vals_e, jnp.asarray(vel))
+    out["scheme_inviscid"] = float(np.asarray(vn_e)[front])
     return out
 
 
@@ -283,7 +292,8 @@ def main():
              (args.potential_flow, potential_flow_wall_velocity, lambda n, v: (
                  f"n_theta {n}, front point {v['theta_deg']:.2f} deg: vn_b / U linear {v['degree_1']:+.4f} "
                  f"(C_p of rho c vn_b at M = 0.1: {20.0 * v['degree_1']:+.3f}), quadratic {v['degree_2']:+.4f}, "
-                 f"cubic {v['degree_3']:+.4f}, linear with the exact Hessians {v['degree_1_exact_hessians']:+.4f}"))]
+                 f"cubic {v['degree_3']:+.4f}, linear with the exact Hessians {v['degree_1_exact_hessians']:+.4f}; "
+                 f"the scheme's on an inviscid run (decision 109) {v['scheme_inviscid']:+.4f}"))]
     for sizes, evaluate, line in exact:
         for n in sizes or ():
             print(line(n, evaluate(n)))

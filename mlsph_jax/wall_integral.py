@@ -22,7 +22,9 @@ and
   (rho, u, p, c)_j and its mirror image, vn = (u_b - u_w) . n_b (SPEC §5.8's Riemann
   alternative; it damps wall-normal acoustic modes; on the no-slip walls of a viscous scheme vn
   comes from the fit that holds the no-slip profile u_n = O(y^2) exactly,
-  :func:`no_slip_normal_weights`, decision 108); tau_b the viscous stress at the wall;
+  :func:`no_slip_normal_weights`, decision 108; on free-slip walls and on every wall of an
+  inviscid scheme from the quadratic fixed-centre MLS at x_b, :data:`FREE_SLIP_NORMAL_DEGREE`,
+  decision 109); tau_b the viscous stress at the wall;
   adiabatic walls (the default) pass no heat; an *isothermal* wall (``wall_energy`` of
   :meth:`BoundaryIntegral.setup`: the specific internal energy e_w of the wall, Params key
   ``geometry.<name>.wall_e``, differentiable) adds the conductive flux -kappa grad(e)_b . n_b to
@@ -94,6 +96,24 @@ from .viscous import particle_flux, wall_flux
 #: no-slip walls' vn of decision 108 (:func:`no_slip_normal_weights`, milder weights than the linear
 #: MLS) keeps it at round-off too (max |v| / u_max 6e-15 at t = 10, CFL 0.6, ny = 10, nx = 8).
 WALL_STATE_DEGREE = 1
+
+#: MLS degree of the wall-normal velocity vn_b = (u_b - u_w) . n_b in the acoustic term of the wall
+#: pressure on free-slip walls and on every wall of an inviscid scheme (decision 109): quadratic.  A
+#: free-slip wall bends the normal velocity (potential flow past a circle: u_n ~ 1 - R^2 / r^2), and
+#: the linear state extrapolates that curvature with an O(h^2) error that c = U / M multiplies
+#: (docs/validation.md "Euler flow past the circle").  The quadratic fit reproduces it, and keeps a
+#: uniform penetration's whole restoring force.  Only vn changes; rho, p and c stay linear.  Measured
+#: not stiff: a free-slip channel (ideal gas and Tait, random initial state) at CFL 0.6 behaves as
+#: with the linear vn; only the whole quadratic wall state was (above).
+FREE_SLIP_NORMAL_DEGREE = 2
+
+#: Pivot threshold of that quadratic fit (:func:`mlsph_jax.approximation.mls.cholesky_pivots`): a wall
+#: point's stencil lies on one side of the wall, so its normal-direction pivot is small on every
+#: layout (0.012-0.13 on the cylinder's polar layouts at 48 and 96 on the body, 0.015 on the
+#: cavity's lattice walls), below ``scheme.wall_fit_rcond`` (0.1) that guards the particles' own
+#: truncated fits.  Points whose stencil falls below this (a single row of particles: 0) keep the
+#: linear wall state.
+FREE_SLIP_NORMAL_RCOND = 1e-3
 
 
 @jax.tree_util.register_dataclass
@@ -473,11 +493,22 @@ class BoundaryIntegralWalls:
         return bp, st, vals
 
     def normal_velocity(self, scheme, bp, st: WallStencils, vals, vel):
-        """vn_b = (u_b - u_w) . n_b ``[Nb]`` (into the wall) of the mirror Riemann problem: from the
-        linear wall state ``vals``, or on no-slip walls of a viscous scheme from the fit without the
-        linear normal term (:func:`no_slip_normal_weights`, decision 108)."""
+        """vn_b = (u_b - u_w) . n_b ``[Nb]`` (into the wall) of the mirror Riemann problem: on no-slip
+        walls of a viscous scheme from the fit without the linear normal term
+        (:func:`no_slip_normal_weights`, decision 108), on the others (free-slip walls, every wall of
+        an inviscid scheme) from the quadratic fixed-centre MLS at x_b
+        (:data:`FREE_SLIP_NORMAL_DEGREE`, decision 109); the linear wall state ``vals`` where a
+        stencil cannot carry either fit."""
         vj = jnp.sum((vel[st.idx] - bp.velocity[:, None, :]) * bp.normal[:, None, :], axis=-1)   # [Nb, K]
         vn = jnp.einsum("bk,bk->b", vals, vj)
+        no_slip = jnp.asarray(self.no_slip)[bp.curve] & scheme.viscous
+        if not (scheme.viscous and all(self.no_slip)):
+            # the fit's own degree fallback (FREE_SLIP_NORMAL_RCOND) gives the linear weights where
+            # the stencil cannot carry the quadratic
+            Nq, _, _, _ = mls.operators_block(st.dx, st.mask, st.h, kernel=get_kernel(self.kernel),
+                                              degree=FREE_SLIP_NORMAL_DEGREE, rcond=FREE_SLIP_NORMAL_RCOND,
+                                              derivative="fixed_centre", with_coeffs=False)
+            vn = jnp.where(no_slip, vn, jnp.einsum("bk,bk->b", Nq, vj))
         if scheme.viscous and any(self.no_slip):
             Nn, ok = no_slip_normal_weights(st, bp.normal, get_kernel(self.kernel), scheme.wall_fit_rcond)
             vn = jnp.where(jnp.asarray(self.no_slip)[bp.curve] & ok, jnp.einsum("bk,bk->b", Nn, vj), vn)
