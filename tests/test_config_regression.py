@@ -106,7 +106,7 @@ def test_reduced_config_reproduces_its_fingerprint(name, reduced_fingerprints):
 #: Built-in configs without a full-size fingerprint, and why (their full runs are the slow
 #: validation tests against published values, which hold their numbers instead).
 FULL_NOT_RECORDED = {
-    "cylinder": "the full steady run (~2 min idle, 10 contended) is tests/test_cylinder.py's slow Re = 40 test",
+    "cylinder": "the full steady run (~11 min, 2 busy cores) is tests/test_cylinder.py's slow Re = 40 test",
     "cylinder_re100": "the full shedding run (~7 min idle, 29 contended) is tests/test_shedding.py's slow test",
     "cylinder_re185": "the full shedding run (12 min at load ~2.3) is tests/test_shedding.py's slow test",
 }

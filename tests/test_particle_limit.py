@@ -31,8 +31,8 @@ def _estimate(cfg):
 
 
 def test_cartesian_layout_on_the_built_in_cylinder_is_refused_before_building(monkeypatch):
-    """``case.layout = "cartesian"`` on configs/cylinder.toml (far field at 40 D, h = pi D / 48)
-    would be ~1.19 million particles (pi (r_far + reach)^2 / h^2, the body's area removed): the
+    """``case.layout = "cartesian"`` on configs/cylinder.toml (far field at 40 D, h = pi D / n_theta)
+    would be ~3.3 million particles at n_theta = 80 (pi (r_far + reach)^2 / h^2, the body's area removed): the
     config load refuses it, naming the layout's keys with their values, the estimate, the limit
     and how to raise it; no layout is built (the lattice builder is never called)."""
     def boom(*a, **k):
@@ -42,12 +42,13 @@ def test_cartesian_layout_on_the_built_in_cylinder_is_refused_before_building(mo
     with pytest.raises(ConfigError) as e:
         config_mod.load(CONFIG_DIR / "cylinder.toml", ["case.layout=\"cartesian\""])
     msg = str(e.value)
-    h = math.pi / 48
-    for w in ("case.layout=\"cartesian\"", "case.r_far=40", "case.lattice_ratio=1", "case.n_theta=48",
+    n_theta = config_mod.load(CONFIG_DIR / "cylinder.toml", [])["case"]["n_theta"]
+    h = math.pi / n_theta
+    for w in ("case.layout=\"cartesian\"", "case.r_far=40", "case.lattice_ratio=1", f"case.n_theta={n_theta}",
               f"run.max_particles = {LIMIT:,}", "--set run.max_particles=", "estimated before building"):
         assert w in msg, (w, msg)
     est = int(msg.split("would build ~")[1].split(" ")[0].replace(",", ""))
-    assert 0.95 * math.pi * 40.0 ** 2 / h ** 2 < est < 1.1 * math.pi * 40.0 ** 2 / h ** 2   # ~1.17e6 inside r_far
+    assert 0.95 * math.pi * 40.0 ** 2 / h ** 2 < est < 1.1 * math.pi * 40.0 ** 2 / h ** 2   # ~3.2e6 inside r_far
     # the suggested limit admits it (the config then loads; nothing is built here)
     suggested = int(msg.split("--set run.max_particles=")[1].split(" ")[0])
     assert suggested >= est

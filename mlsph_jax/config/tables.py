@@ -343,7 +343,7 @@ RUN_KEYS: dict[str, Key] = {
                              "exceeds it is refused at load, naming the keys that set the count, the estimate and "
                              "this limit; the built count is checked again after building. Raise it for a "
                              "deliberately large run (built-in configs: at most ~10,000 particles, blast_2d; the "
-                             "thesis' cylinder 10,800; case.layout = \"cartesian\" on configs/cylinder.toml ~1.2 "
+                             "thesis' cylinder 10,800; case.layout = \"cartesian\" on configs/cylinder.toml ~3.3 "
                              "million)"),
 }
 
