@@ -612,3 +612,42 @@ def test_a_particle_crossing_the_body_stops_both_run_paths(monkeypatch, tmp_path
     with pytest.raises(SimulationError, match=f"in step 1 starting at t=0, particle {bad}") as ei:
         run_differentiable(sim, pb.params, pb.particles)
     assert Status(ei.value.status) & Status.WALL_CROSSED
+
+
+def test_each_curve_of_a_viscous_scheme_takes_its_own_wall_normal_velocity():
+    """Decisions 108 and 109 on one viscous scheme with a no-slip and a free-slip body: the free-slip
+    body's vn_b is the quadratic MLS at its wall points, which reproduces a quadratic velocity
+    field (vn_b = (u(x_b) - u_w) . n_b to round-off, where the linear wall state is off by O(h^2)),
+    and the no-slip body's is decision 108's fit without the linear normal term, point for point."""
+    from mlsph_jax.geometry import curve_params
+    from mlsph_jax.geometry.checks import inside_polygon, outline
+    from mlsph_jax.wall_integral import no_slip_normal_weights
+
+    sch = Scheme(eos="ideal_gas", viscous=True)
+    curves = (Circle("a", centre=(-0.75, 0.0), radius=0.35, n_points=44),
+              Circle("b", centre=(0.75, 0.0), radius=0.35, n_points=44))
+    dx = 0.05
+    x = _lattice(60, 40, dx, -1.5, -1.0)
+    P = Params(curve_params(list(curves)))
+    for c in curves:
+        x = x[~inside_polygon(x, outline(c, P))]
+    n = len(x)
+    vel = np.stack([0.3 + x[:, 0] - 0.5 * x[:, 1] ** 2, 0.2 * x[:, 0] * x[:, 1] + 0.4 * x[:, 0] ** 2], axis=1)
+    U = to_conservative(jnp.ones(n), jnp.asarray(vel), jnp.ones(n), get_eos(sch.eos), GAS)
+    pf = make_particles(x, np.full(n, dx * dx), U)
+    domain = Domain((-1.5, -1.0), (1.5, 1.0), (True, True))
+    p, bw = BOUNDARIES.get("boundary_integral").setup(pf, [], 2 * dx, GAS, sch.eos, scheme=sch, domain=domain,
+                                                       curves=curves, no_slip=(True, False))
+    bp, st, vals = bw.state_weights(p, GAS, sch)
+    vn = np.asarray(bw.normal_velocity(sch, bp, st, vals, jnp.asarray(vel)))
+    xb, normal, curve = np.asarray(bp.x), np.asarray(bp.normal), np.asarray(bp.curve)
+    exact = np.einsum("bd,bd->b", np.stack([0.3 + xb[:, 0] - 0.5 * xb[:, 1] ** 2,
+                                             0.2 * xb[:, 0] * xb[:, 1] + 0.4 * xb[:, 0] ** 2], axis=1), normal)
+    vj = np.einsum("bkd,bd->bk", vel[np.asarray(st.idx)], normal)
+    linear = np.einsum("bk,bk->b", np.asarray(vals), vj)
+    slip = curve == 1
+    assert np.abs(vn[slip] - exact[slip]).max() <= 1e-11
+    assert np.abs(linear[slip] - exact[slip]).max() >= 1e-4          # the linear state is not exact
+    Nn, ok = no_slip_normal_weights(st, bp.normal, get_kernel(bw.kernel), sch.wall_fit_rcond)
+    assert bool(np.all(np.asarray(ok)[~slip]))
+    np.testing.assert_allclose(vn[~slip], np.einsum("bk,bk->b", np.asarray(Nn), vj)[~slip], rtol=0, atol=1e-14)
