@@ -268,7 +268,7 @@ def test_force_on_body_at_rest_is_the_buoyancy():
 
 
 @pytest.mark.parametrize("overrides, words", [
-    (("case.r_far=0.65",), ["case.r_far=0.65", "far-field rings", "allowed: case.r_far > 0.6678"]),
+    (("case.n_theta=48", "case.r_far=0.65"), ["case.r_far=0.65", "far-field rings", "allowed: case.r_far > 0.6678"]),
     (("case.radius=9.5", "case.r_far=10.0"), ["case.radius=9.5", "case.r_far=10", "too big for the layout"]),
     (("case.n_theta=24",), ["case.n_theta", "24", ">= 32"]),
     (("case.r_far=0.4",), ["case.r_far=0.4", "outer radius > case.radius=0.5"]),
