@@ -514,7 +514,7 @@ class BoundaryIntegralWalls:
             vn = jnp.where(quadratic, jnp.einsum("bk,bk->b", Nq, vj), vn)
         if scheme.viscous and any(self.no_slip):
             Nn, ok = no_slip_normal_weights(st, bp.normal, get_kernel(self.kernel), scheme.wall_fit_rcond)
-            vn = jnp.where(jnp.asarray(self.no_slip)[bp.curve] & ok, jnp.einsum("bk,bk->b", Nn, vj), vn)
+            vn = jnp.where(no_slip & ok, jnp.einsum("bk,bk->b", Nn, vj), vn)
         return vn
 
     def wall_terms(self, p: Particles, params, geom, scheme, U, prim, w):
