@@ -42,6 +42,7 @@ linear wall state's (docs/validation.md "The no-slip wall's normal velocity").
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 import json
 import math
@@ -236,13 +237,11 @@ def potential_flow_wall_velocity(n_theta: int) -> dict:
                                      + potential_flow_velocity(xk - ea - eb, R)) / (4 * eps * eps)
             corrected = vel[idx] - 0.5 * np.einsum("kd,kcde,ke->kc", dx, H, dx)
             out["degree_1_exact_hessians"] = float(np.asarray(vals)[front] @ corrected @ normal[front])
-    # the scheme's own vn_b on the body of an inviscid run (`case.inviscid`, a wall without
+    # the scheme's own vn_b on the same body in an inviscid run (`case.inviscid`, a wall without
     # friction: the quadratic MLS of decision 109)
-    cfg_e = config.load(ROOT / "configs" / "cylinder.toml", [f"case.n_theta={n_theta}", "case.r_far=10.0",
-                                                             "case.inviscid=true"])
-    pe = build_problem(cfg_e)
-    bp_e, st_e, vals_e = pe.boundary.state_weights(pe.particles, pe.params, pe.scheme)
-    vn_e = pe.boundary.normal_velocity(pe.scheme, bp_e, st_e, vals_e, jnp.asarray(vel))
+    inviscid = dataclasses.replace(pb.scheme, viscous=False)
+    bp_e, st_e, vals_e = walls.state_weights(pb.particles, pb.params, inviscid)
+    vn_e = walls.normal_velocity(inviscid, bp_e, st_e, vals_e, jnp.asarray(vel))
     out["scheme_inviscid"] = float(np.asarray(vn_e)[front])
     return out
 
