@@ -13,11 +13,20 @@
 with respect to the first argument, ``grad W(dx) = f'(q) sigma_d / h^(d+1) * dx / |dx|``, which
 points from the centre towards ``dx`` scaled by f' < 0 (SPEC §3.1).  All functions are pure,
 vectorised and safe at r = 0 (no NaN in values or derivatives, also under autodiff).
+
+Derivatives at the origin.  |dx| has no derivative at dx = 0, so autodiff through r = |dx| (the
+zero-derivative :func:`safe_norm`) sees a flat kernel there, while the kernel itself is smooth:
+its Hessian at the origin is f''(0) sigma_d / h^(d+2) I (the limit of f'(q) / q).  ``grad`` is
+therefore written as g(r) dx with g(r) = (dW/dr) / r and g(0) = that limit (``Kernel.f2_0``,
+f''(0) of each kernel), and ``w_vec`` carries a custom JVP whose tangent is ``grad . t`` (plus
+dW/dh for a differentiated h): every autodiff derivative of W and of grad W, of any order, is the
+kernel's own, also at dx = 0.  Values are those of the plain formulas bit for bit.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Callable
 
@@ -36,6 +45,8 @@ class Kernel:
     sigma: tuple[float, float, float]
     f: Callable[[jax.Array], jax.Array] = dataclasses.field(compare=False, repr=False)
     df: Callable[[jax.Array], jax.Array] = dataclasses.field(compare=False, repr=False)
+    #: f''(0) in 1, 2, 3 dimensions: the limit of f'(q) / q at the origin (module docstring)
+    f2_0: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def norm(self, dim: int) -> float:
         return self.sigma[dim - 1]
@@ -49,14 +60,36 @@ class Kernel:
         return self.norm(dim) / h ** (dim + 1) * self.df(r / h)
 
     def w_vec(self, dx: jax.Array, h: jax.Array) -> jax.Array:
-        """W(|dx|, h) for separation vectors ``dx[..., d]`` (autodiff-safe at dx = 0)."""
-        return self.w(safe_norm(dx), h, dx.shape[-1])
+        """W(|dx|, h) for separation vectors ``dx[..., d]``; its autodiff derivative with respect
+        to dx is :meth:`grad` (also at dx = 0, where r = |dx| has none), with respect to h
+        dW/dh = -(d W + r dW/dr) / h."""
+        return _w_vec(self, dx, h)
 
     def grad(self, dx: jax.Array, h: jax.Array) -> jax.Array:
-        """Gradient of W(|dx|, h) with respect to dx, shape ``[..., d]``; zero at dx = 0."""
+        """Gradient of W(|dx|, h) with respect to dx, shape ``[..., d]``: g(r) dx with
+        g = (dW/dr) / r, and g(0) = f''(0) sigma_d / h^(d+2), its limit, so that the Jacobian of
+        the gradient (the Hessian of W) is the kernel's also at dx = 0 (where the value is 0)."""
+        d = dx.shape[-1]
         r = safe_norm(dx)
         rs = jnp.where(r > 0, r, 1.0)
-        return (self.dw_dr(r, h, dx.shape[-1]) / rs)[..., None] * dx
+        g = jnp.where(r > 0, self.dw_dr(r, h, d) / rs, self.f2_0[d - 1] * self.norm(d) / h ** (d + 2))
+        return g[..., None] * dx
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
+def _w_vec(kernel: Kernel, dx, h):
+    return kernel.w(safe_norm(dx), h, dx.shape[-1])
+
+
+@_w_vec.defjvp
+def _w_vec_jvp(kernel: Kernel, primals, tangents):
+    dx, h = primals
+    t_dx, t_h = tangents
+    d = dx.shape[-1]
+    r = safe_norm(dx)
+    w = kernel.w(r, h, d)
+    dw_dh = -(d * w + r * kernel.dw_dr(r, h, d)) / h
+    return w, jnp.sum(kernel.grad(dx, h) * t_dx, axis=-1) + dw_dh * t_h
 
 
 def safe_norm(dx: jax.Array) -> jax.Array:
@@ -82,7 +115,8 @@ def _cubic_df(q):
 
 
 KERNELS.register("cubic_spline")(
-    Kernel("cubic_spline", 2.0, (2.0 / 3.0, 10.0 / (7.0 * math.pi), 1.0 / math.pi), _cubic_f, _cubic_df)
+    Kernel("cubic_spline", 2.0, (2.0 / 3.0, 10.0 / (7.0 * math.pi), 1.0 / math.pi), _cubic_f, _cubic_df,
+           (-3.0, -3.0, -3.0))
 )
 
 
@@ -103,7 +137,7 @@ def _wendland1_f(q):
 
 def _wendland1_df(q):
     t = _pos(1.0 - 0.5 * q)
-    return -1.5 * t**2 * (1.5 * q + 1.0) + 1.5 * t**3  # = -15/4 q t^2
+    return -1.5 * t**2 * (1.5 * q + 1.0) + 1.5 * t**3  # = -3 q t^2
 
 
 @dataclasses.dataclass(frozen=True)
@@ -121,7 +155,7 @@ class _WendlandC2(Kernel):
 
 KERNELS.register("wendland_c2")(
     _WendlandC2("wendland_c2", 2.0, (5.0 / 8.0, 7.0 / (4.0 * math.pi), 21.0 / (16.0 * math.pi)),
-                _wendland_f, _wendland_df)
+                _wendland_f, _wendland_df, (-3.0, -5.0, -5.0))
 )
 
 
@@ -135,7 +169,7 @@ def _quintic_df(q):
 
 KERNELS.register("quintic_spline")(
     Kernel("quintic_spline", 3.0, (1.0 / 120.0, 7.0 / (478.0 * math.pi), 1.0 / (120.0 * math.pi)),
-           _quintic_f, _quintic_df)
+           _quintic_f, _quintic_df, (-120.0, -120.0, -120.0))
 )
 
 
