@@ -5,11 +5,14 @@ For each ``--set``-style layout (``--n-theta`` values; the config's other settin
 
 * ``rhs``: the interior right-hand side alone (no body), ``rhs+walls``: with the body's boundary
   term, ``walls``: the body's ``wall_terms`` alone, and ``band``: the in-run crossing/overflow
-  check of every committed step; each compiled ahead of time (compile time reported) and timed
-  as the best of ``--repeat`` runs interleaved (A, B, C, D, A, ...) so machine load affects all
-  alike;
+  check of every committed step, all with the walls as the run uses them (Eulerian particles:
+  the wall-point stencils and near-wall rows searched once, ``integrate.fixed_boundary``), and
+  ``walls+search``: ``wall_terms`` with the searches redone at every call (what a moving frame
+  pays per stage); each compiled ahead of time (compile time reported) and timed as the best of
+  ``--repeat`` runs interleaved (A, B, C, D, A, ...) so machine load affects all alike;
 * ``run``: ``--steps`` SSP-RK3 steps of the full simulation at a fixed step near the CFL step (no output):
-  particle-steps per second after compilation, and the compile time.
+  particle-steps per second over the stepping chunks (summary ``chunk_time_s``: set-up, compilation
+  and output excluded), and the compile time.
 
 ``--steady``: steps to the steady state (``case.steady_tol``) with and without the convergence
 accelerator, local time stepping (``time.local_time_stepping``, decision 62), for each
@@ -41,6 +44,7 @@ import time
 from mlsph_jax import config as config_mod
 from mlsph_jax import neighbors
 from mlsph_jax.cases import build_problem
+from mlsph_jax.integrate import fixed_boundary
 from mlsph_jax.rhs import geometry
 from mlsph_jax.simulation import run_problem
 from mlsph_jax.testing import CONFIG_DIR, time_interleaved
@@ -54,9 +58,14 @@ def load(n_theta: int, extra=()):
                                                           "output.progress=false", *extra])
 
 
-def variants(walls, scheme) -> dict:
-    """``rhs``, ``rhs+walls``, ``walls`` of experiments/bench_wall_integral.py and the ``band`` check."""
-    return {**wall_variants(walls, scheme), "band": lambda p, params, geom: walls.band_status(p)}
+def variants(walls, scheme, searched=None) -> dict:
+    """``rhs``, ``rhs+walls``, ``walls`` of experiments/bench_wall_integral.py and the ``band`` check
+    for ``walls``; ``walls+search``: ``walls`` of the unfixed ``searched`` walls, if given."""
+    out = {k: v for k, v in wall_variants(walls, scheme).items() if k != "walls_brute"}
+    out["band"] = lambda p, params, geom: walls.band_status(p)
+    if searched is not None:
+        out["walls+search"] = wall_variants(searched, scheme)["walls"]
+    return out
 
 
 def main(argv=None):
@@ -80,19 +89,22 @@ def main(argv=None):
         h = scheme.beta * p.vol ** 0.5
         _, nl = neighbors.allocate(p.x, h, pb.domain)
         geom = geometry(p.x, p.vol, nl, scheme, pb.domain)
-        best, compile_s = time_interleaved(variants(walls, scheme), (p, params, geom), args.repeat)
+        run_walls = fixed_boundary(walls, scheme, p, params)
+        best, compile_s = time_interleaved(variants(run_walls, scheme, None if run_walls is walls else walls),
+                                           (p, params, geom), args.repeat)
         load_rhs = os.getloadavg()[0]
         dt = 1e-3 * 48 / nt     # about the CFL step at cfl 0.3 (fixed: the step count is exact)
         run_cfg = load(nt, [*args.overrides, f"time.dt={dt!r}", f"time.t_end={args.steps * dt!r}", "case.steady_tol=0",
                             "output.snapshots=1", "time.local_time_stepping=false"])
         res = run_problem(build_problem(run_cfg), run_cfg, out_dir=None, quiet=True)
         s = res.summary
-        run_s = s["wall_time_s"] - s["compile_time_s"]
+        run_s = s["chunk_time_s"]   # the stepping chunks alone (wall time less set-up, compilation and output)
         load_run = os.getloadavg()[0]
         row = {"n_theta": nt, "overrides": args.overrides, "setup_s": setup_s,
                "n_particles": p.n, "n_wall_points": nt, "capacity": walls.capacity,
                "best_s": best, "compile_s": compile_s, "wall_cost_ratio": best["walls"] / best["rhs"],
-               "band_cost_ratio": best["band"] / best["rhs"], "run_steps": int(s["n_steps"]),
+               "band_cost_ratio": best["band"] / best["rhs"], "walls_fixed": run_walls is not walls,
+               "run_steps": int(s["n_steps"]),
                "run_s": run_s, "run_compile_s": s["compile_time_s"], "dt_last": s["dt_last"],
                "particle_steps_per_s": p.n * int(s["n_steps"]) / run_s, "load_average_rhs": load_rhs,
                "load_average_run": load_run}
@@ -101,7 +113,9 @@ def main(argv=None):
         print(f"n_theta={nt} {' '.join(args.overrides)} N={p.n} K_b={walls.capacity} (set-up {setup_s:.1f} s):\n"
               f"  rhs {best['rhs'] * 1e3:.2f} ms, rhs+walls "
               f"{best['rhs+walls'] * 1e3:.2f} ms, walls {best['walls'] * 1e3:.2f} ms ({row['wall_cost_ratio']:.2f} "
-              f"of rhs), band check {best['band'] * 1e3:.2f} ms; {tag(load_rhs)}\n"
+              f"of rhs), band check {best['band'] * 1e3:.2f} ms"
+              + (f", walls with the searches {best['walls+search'] * 1e3:.2f} ms" if "walls+search" in best else "")
+              + f"; {tag(load_rhs)}\n"
               f"  run: {row['run_steps']} steps in {run_s:.1f} s = {row['particle_steps_per_s']:.3g} particle-steps/s "
               f"(dt {s['dt_last']:.3g}), compile {s['compile_time_s']:.1f} s; {tag(load_run)}", flush=True)
     out = pathlib.Path(__file__).parent / "output"

@@ -132,13 +132,17 @@ class WallStencils:
     count: jax.Array
 
 
-def search_grid(x, h, domain, support: float, headroom: float = 1.5) -> NeighborSpec:
+def search_grid(x, h, domain, support: float, headroom: float = 1.5, reach_h: float | None = None) -> NeighborSpec:
     """The cell grid of a wall-stencil search (:func:`wall_stencils` ``grid``): cells of the
-    largest support radius ``support * max h`` with ``headroom`` (volumes of moving particles grow;
-    a support beyond the cells stops the run loudly)."""
+    support radius ``support * reach_h`` with ``headroom`` (volumes of moving particles grow; a
+    support beyond the cells stops the run loudly).  ``reach_h``: the largest smoothing length
+    h_b of a wall point (the stencils' ``h``, that of the particle nearest to the point), default
+    the largest ``h`` of all particles.  On a graded layout the wall points see only the small
+    particles next to the body, whose supports are a small fraction of the far field's."""
     h = np.asarray(h)
-    return plan(np.asarray(x), h, domain, support=support, headroom=headroom,
-                cell_size=support * float(h.max()) * headroom)
+    reach = float(h.max()) if reach_h is None else float(reach_h)
+    return plan(np.asarray(x), np.minimum(h, reach), domain, support=support, headroom=headroom,
+                cell_size=support * reach * headroom)
 
 
 def wall_stencils(x, vol, kind, xb, *, beta: float, support: float, capacity: int, box=None,
@@ -714,15 +718,17 @@ class BoundaryIntegral:
                              f"{int(count[b])} particles within its support, the linear MLS fits at a wall "
                              f"point need more than {m}; allowed: a larger scheme.beta or more particles near "
                              "the walls")
-        # the cell grid of the stencil search: cells of the largest support radius with headroom
-        # (volumes of moving particles grow; a support beyond the cells stops the run loudly)
+        # the cell grid of the stencil search: cells of the largest wall-point support radius
+        # (support * h_b, h_b of the particle nearest to the point) with headroom (volumes of
+        # moving particles grow; a support beyond the cells stops the run loudly).  Not the
+        # largest support of all particles: on the cylinder's graded rings (h growing 100-fold)
+        # cells of that size hold nearly every particle near the body
         h_set = scheme.beta * np.asarray(p_fluid.vol) ** (1.0 / p_fluid.dim)
-        grid = search_grid(p_fluid.x, h_set, domain, kern.support, headroom)
-        near_grid = search_grid(p_fluid.x, h_set, domain, NEAR_SUPPORTS * kern.support, headroom)
+        h_wall = float(np.max(np.asarray(big.h)))
+        grid = search_grid(p_fluid.x, h_set, domain, kern.support, headroom, reach_h=h_wall)
+        near_grid = search_grid(p_fluid.x, h_set, domain, NEAR_SUPPORTS * kern.support, headroom, reach_h=h_wall)
         # a grid pays only when the cells around a wall point hold fewer candidates than the whole
-        # fluid: with strongly graded layouts (the cylinder's polar rings, h growing 100-fold) the
-        # cells of the largest support hold nearly every particle near the body, and the cell
-        # search costs 13x the distance pass (bench_cylinder.py); both give the same stencils
+        # fluid (small layouts keep the distance pass); both give the same stencils
         grid, near_grid = (g if 2 * 3 ** p_fluid.dim * g.cell_capacity < p_fluid.n else None
                            for g in (grid, near_grid))
         near = wall_stencils(p_fluid.x, p_fluid.vol, p_fluid.kind, xb, beta=scheme.beta,

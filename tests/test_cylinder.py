@@ -84,6 +84,41 @@ def test_uniform_stream_without_body_stays_uniform_and_far_field_is_frozen():
     assert frozen.sum() == 32 * 4 and np.all(np.asarray(dq)[frozen] == 0.0)
 
 
+def test_wall_search_cells_follow_the_body_particles_on_graded_rings():
+    """The cells of the wall-stencil search are sized by the wall points' own supports
+    (support * h_b), not by the largest support of the graded rings (h grows ~30-fold out to
+    10 D here): the set-up then plans a cell search, and it finds the distance pass's stencils
+    (indices, slots and counts exactly, offsets to round-off) also after the particles moved.
+    Moving frames redo this search every stage (Eulerian runs once): 302 -> 29 ms per call at
+    120 on the body (experiments/bench_cylinder.py, docs/performance.md)."""
+    import jax
+
+    from mlsph_jax.kernels import get_kernel
+    from mlsph_jax.wall_integral import wall_stencils
+
+    cfg = config_mod.load(CONFIG_DIR / "cylinder.toml", ["case.n_theta=32", "case.r_far=10", "output.plots=false"])
+    p, bw = (pb := build_problem(cfg)).particles, pb.boundary
+    h = bw.beta * np.asarray(p.vol) ** 0.5
+    kern = get_kernel(bw.kernel)
+    assert h.max() > 20 * h.min()
+    assert bw.grid is not None
+    assert kern.support * float(np.max(np.asarray(bw.stencils(p, bw.points({}).x).h))) <= bw.grid.cell_size
+    assert bw.grid.cell_size < 0.1 * kern.support * h.max()
+    xb = bw.points({}).x
+    rng = np.random.default_rng(11)
+    x = p.x + 0.2 * jnp.asarray(h[:, None] / bw.beta * rng.uniform(-1, 1, p.x.shape))
+    moved = p.replace(x=x)
+    cells = jax.jit(lambda q: bw.stencils(q, xb))(moved)
+    brute = wall_stencils(x, p.vol, p.kind, xb, beta=bw.beta, support=kern.support, capacity=bw.capacity)
+    assert int(jnp.max(cells.count)) <= bw.capacity
+    for a, b in zip(jax.tree_util.tree_leaves(brute), jax.tree_util.tree_leaves(cells), strict=True):
+        a, b = np.asarray(a), np.asarray(b)
+        if a.dtype.kind == "f":
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-13 * max(np.abs(b).max(), 1e-300))
+        else:
+            np.testing.assert_array_equal(a, b)
+
+
 def test_body_terms_vanish_for_a_uniform_state_at_rest():
     """With the body: fluid at rest with uniform pressure has zero boundary terms (F_b . n = p n =
     F_i . n at every wall point) and zero right-hand side to round-off; the same fluid moving
