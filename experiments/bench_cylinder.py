@@ -62,7 +62,7 @@ def variants(walls, scheme, searched=None) -> dict:
     """``rhs``, ``rhs+walls``, ``walls`` of experiments/bench_wall_integral.py and the ``band`` check
     for ``walls``; ``walls+search``: ``walls`` of the unfixed ``searched`` walls, if given."""
     out = {k: v for k, v in wall_variants(walls, scheme).items() if k != "walls_brute"}
-    out["band"] = lambda p, params, geom: walls.band_status(p)
+    out["band"] = lambda p, params, geom: walls.band_status(p, params)
     if searched is not None:
         out["walls+search"] = wall_variants(searched, scheme)["walls"]
     return out

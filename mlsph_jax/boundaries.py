@@ -81,7 +81,7 @@ class MirrorWalls:
     side: tuple = dataclasses.field(metadata=dict(static=True), default=())
     band: float = dataclasses.field(metadata=dict(static=True), default=0.0)
 
-    def band_status(self, p: Particles):
+    def band_status(self, p: Particles, params=None):
         """``(Status.GHOST_BAND or 0, first such particle or -1)``: a fluid particle within
         ``band`` of a wall it has no ghost across.  The ghost set is fixed at setup, so such a
         particle's mirror image is missing and the wall is incomplete around it (traceable)."""

@@ -327,7 +327,7 @@ def step_status(p: Particles, newp: Particles, params: Params, scheme: Scheme, d
       effective Courant number of twice ``cfl`` (0.6 by default, still inside SSP-RK3's linear
       stability range) before it stops the run;
     * DT_UNDERFLOW when ``dt < dt_min`` and the step is not the ``last`` one before an output time;
-    * the ``boundary``'s ``band_status(newp)`` if it has one (mirror walls: GHOST_BAND).
+    * the ``boundary``'s ``band_status(newp, params)`` if it has one (mirror walls: GHOST_BAND).
 
     For the dt causes the particle is the one limiting the CFL step.  ``ops`` (:class:`LocalOps`
     by default): how the particle of a cause is found (the spatial decomposition finds it over
@@ -337,7 +337,7 @@ def step_status(p: Particles, newp: Particles, params: Params, scheme: Scheme, d
     bits, bad = state_status(newp, params, scheme, first=ops.first)
     bits = bits | overflow
     if getattr(boundary, "band_status", None) is not None:
-        bits, bad = combine(bits, bad, *boundary.band_status(newp))
+        bits, bad = combine(bits, bad, *boundary.band_status(newp, params))
     unresolved, unres_particle = stats[2], stats[3]
     mood = unresolved > 0
     bits, bad = combine(bits, bad, jnp.where(mood, jnp.int32(Status.MOOD_UNRESOLVED), 0),

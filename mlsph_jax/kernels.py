@@ -19,8 +19,10 @@ zero-derivative :func:`safe_norm`) sees a flat kernel there, while the kernel it
 its Hessian at the origin is f''(0) sigma_d / h^(d+2) I (the limit of f'(q) / q).  ``grad`` is
 therefore written as g(r) dx with g(r) = (dW/dr) / r and g(0) = that limit (``Kernel.f2_0``,
 f''(0) of each kernel), and ``w_vec`` carries a custom JVP whose tangent is ``grad . t`` (plus
-dW/dh for a differentiated h): every autodiff derivative of W and of grad W, of any order, is the
-kernel's own, also at dx = 0.  Values are those of the plain formulas bit for bit.
+dW/dh for a differentiated h): the first and second autodiff derivatives of W (and the first of
+grad W), in x, h or both and in any order, are the kernel's, also at dx = 0.  (Third derivatives
+in x do not exist at the origin: every kernel here has a q^3 term.)  Values equal those of the
+plain formulas (bit for bit except the sign of the zero gradient at r = 0).
 """
 
 from __future__ import annotations
@@ -46,7 +48,7 @@ class Kernel:
     f: Callable[[jax.Array], jax.Array] = dataclasses.field(compare=False, repr=False)
     df: Callable[[jax.Array], jax.Array] = dataclasses.field(compare=False, repr=False)
     #: f''(0) in 1, 2, 3 dimensions: the limit of f'(q) / q at the origin (module docstring)
-    f2_0: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    f2_0: tuple[float, float, float]
 
     def norm(self, dim: int) -> float:
         return self.sigma[dim - 1]
@@ -63,17 +65,26 @@ class Kernel:
         """W(|dx|, h) for separation vectors ``dx[..., d]``; its autodiff derivative with respect
         to dx is :meth:`grad` (also at dx = 0, where r = |dx| has none), with respect to h
         dW/dh = -(d W + r dW/dr) / h."""
+        dx, h = jnp.asarray(dx), jnp.asarray(h)
+        if not jnp.issubdtype(dx.dtype, jnp.inexact):
+            dx = dx.astype(jnp.result_type(float))
+        if not jnp.issubdtype(h.dtype, jnp.inexact):      # an integer h: no float0 tangent in the rule
+            h = h.astype(dx.dtype)
         return _w_vec(self, dx, h)
 
-    def grad(self, dx: jax.Array, h: jax.Array) -> jax.Array:
-        """Gradient of W(|dx|, h) with respect to dx, shape ``[..., d]``: g(r) dx with
-        g = (dW/dr) / r, and g(0) = f''(0) sigma_d / h^(d+2), its limit, so that the Jacobian of
-        the gradient (the Hessian of W) is the kernel's also at dx = 0 (where the value is 0)."""
+    def radial_factor(self, dx: jax.Array, h: jax.Array) -> jax.Array:
+        """g = (dW/dr) / r, shape ``dx.shape[:-1]``, with its limit f''(0) sigma_d / h^(d+2) at
+        r = 0 (so that g dx is the gradient and its Jacobian the Hessian, also at the origin)."""
         d = dx.shape[-1]
         r = safe_norm(dx)
         rs = jnp.where(r > 0, r, 1.0)
-        g = jnp.where(r > 0, self.dw_dr(r, h, d) / rs, self.f2_0[d - 1] * self.norm(d) / h ** (d + 2))
-        return g[..., None] * dx
+        return jnp.where(r > 0, self.dw_dr(r, h, d) / rs, self.f2_0[d - 1] * self.norm(d) / h ** (d + 2))
+
+    def grad(self, dx: jax.Array, h: jax.Array) -> jax.Array:
+        """Gradient of W(|dx|, h) with respect to dx, shape ``[..., d]``: g(r) dx with
+        g = :meth:`radial_factor`, so that the Jacobian of the gradient (the Hessian of W) is the
+        kernel's also at dx = 0 (where the value is 0)."""
+        return self.radial_factor(dx, h)[..., None] * dx
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
@@ -83,13 +94,16 @@ def _w_vec(kernel: Kernel, dx, h):
 
 @_w_vec.defjvp
 def _w_vec_jvp(kernel: Kernel, primals, tangents):
+    """Tangent g dx . t_dx + dW/dh t_h with dW/dh = -(d W + g r^2) / h, everything written with
+    W itself (this rule again) and g: derivatives of any order and in any order (x then h or h
+    then x) are the kernel's, also at dx = 0."""
     dx, h = primals
     t_dx, t_h = tangents
     d = dx.shape[-1]
-    r = safe_norm(dx)
-    w = kernel.w(r, h, d)
-    dw_dh = -(d * w + r * kernel.dw_dr(r, h, d)) / h
-    return w, jnp.sum(kernel.grad(dx, h) * t_dx, axis=-1) + dw_dh * t_h
+    w = _w_vec(kernel, dx, h)
+    g = kernel.radial_factor(dx, h)
+    dw_dh = -(d * w + g * jnp.sum(dx * dx, axis=-1)) / h
+    return w, g * jnp.sum(dx * t_dx, axis=-1) + dw_dh * t_h
 
 
 def safe_norm(dx: jax.Array) -> jax.Array:

@@ -445,13 +445,13 @@ class _HaloBoundary:
             p = self.ops.mirror.apply(p, params)
         return self.ops.exchange(p)
 
-    def band_status(self, p):
+    def band_status(self, p, params=None):
         """The mirror walls' check of this shard, its particle as an original index (the
         smallest over the shards' first offenders in local order; the cause is the same as on
         one device, the particle may be another one within the band)."""
         if self.ops.mirror is None:
             return jnp.zeros((), jnp.int32), jnp.asarray(-1, jnp.int32)
-        bits, bad = self.ops.mirror.band_status(p)
+        bits, bad = self.ops.mirror.band_status(p, params)
         t = self.ops.t
         ok = (bad >= 0) & t.owned[jnp.maximum(bad, 0)]
         return bits, self.ops._smallest(jnp.where(ok, t.gid[jnp.maximum(bad, 0)], _BIG))

@@ -84,7 +84,8 @@ _DESCRIPTIONS = {
     Status.WALL_CROSSED: ("a fluid particle crossed a boundary-integral wall (inside a body, outside a container or "
                           "beyond a wall segment; nothing keeps moving particles in the fluid but the wall pressure)"),
     Status.BOUNDARY_OVERFLOW: ("a boundary-integral wall point has more particles within its support than the stencil "
-                               "capacity sized at set-up (the particles crowded against a wall)"),
+                               "capacity sized at set-up (the particles crowded against a wall), or its support "
+                               "outgrew the cells of the wall-stencil search (the particles next to a wall grew)"),
     Status.AREA_CORRECTION_UNCONVERGED: ("the conjugate-gradient solve of scheme.area_correction stopped at its "
                                          "iteration cap (area_correction.CG_MAXITER) above its tolerance: the area "
                                          "vectors are only partly corrected"),

@@ -184,7 +184,10 @@ def wall_stencils(x, vol, kind, xb, *, beta: float, support: float, capacity: in
     idx = slot
     if cand is not None:
         idx = jnp.take_along_axis(safe, slot, axis=1)
-        reach = jax.lax.stop_gradient(support * h) <= grid.cell_size
+        # the cells see the whole support, and the nearest particle found is the nearest of all
+        # (one within a cell size of x_b; else a farther one could be missed)
+        reach = ((jax.lax.stop_gradient(support * h) <= grid.cell_size)
+                 & (jnp.min(r2s, axis=1) <= grid.cell_size ** 2))
         count = jnp.where(complete & reach, count, jnp.iinfo(jnp.int32).max)
     idx = jnp.where(mask, idx, 0)                                             # padding: particle 0
     return WallStencils(idx, mask, jnp.where(mask[..., None], dx, 0.0), h, count)
@@ -626,10 +629,12 @@ class BoundaryIntegralWalls:
                 "cd_pressure": pressure[k] @ e_d / q, "cl_pressure": pressure[k] @ e_l / q}
 
     # -- the in-run checks -------------------------------------------------------------------
-    def band_status(self, p: Particles):
+    def band_status(self, p: Particles, params=None):
         """``(bits, particle)``: WALL_CROSSED for a fluid particle beyond a wall of the set-up
-        geometry, BOUNDARY_OVERFLOW for a wall stencil with more than ``capacity`` particles (or
-        more particles near the walls than the correction rows hold)."""
+        geometry, BOUNDARY_OVERFLOW for a wall stencil with more than ``capacity`` particles, a
+        wall point's support beyond the search cells (or no particle within a cell of it), or more
+        particles near the walls than the correction rows hold.  The stencils are those of the
+        wall points at ``params`` (the walls' own values if None), as in the wall terms."""
         from .status import Status
 
         p = jax.lax.stop_gradient(p)
@@ -641,7 +646,7 @@ class BoundaryIntegralWalls:
         for s in range(self.segments.shape[0]):
             crossed = crossed | beyond_segment(p.x, self.segments[s, 0], self.segments[s, 1], self.band, jnp)
         crossed = crossed & fluid
-        st, _, rows_over = self._stencils_and_rows(p, self.points({}).x)
+        st, _, rows_over = self._stencils_and_rows(p, self.points({} if params is None else params).x)
         over = jnp.any(st.count > self.capacity) | rows_over
         hit = jnp.any(crossed)
         bits = (jnp.where(hit, jnp.int32(Status.WALL_CROSSED), 0)

@@ -85,38 +85,48 @@ def test_uniform_stream_without_body_stays_uniform_and_far_field_is_frozen():
 
 
 def test_wall_search_cells_follow_the_body_particles_on_graded_rings():
-    """The cells of the wall-stencil search are sized by the wall points' own supports
+    """The cells of the wall-stencil searches are sized by the wall points' own supports
     (support * h_b), not by the largest support of the graded rings (h grows ~30-fold out to
-    10 D here): the set-up then plans a cell search, and it finds the distance pass's stencils
-    (indices, slots and counts exactly, offsets to round-off) also after the particles moved.
-    Moving frames redo this search every stage (Eulerian runs once): 302 -> 29 ms per call at
-    120 on the body (experiments/bench_cylinder.py, docs/performance.md)."""
+    10 D here): the set-up then plans cell searches for the stencils and for the near-wall rows of
+    the first-moment correction, and they find the distance pass's stencils and rows (indices,
+    slots, counts and rows exactly, offsets to round-off) also after the particles moved.  A
+    support grown beyond the cells is reported (BOUNDARY_OVERFLOW), never cut.  Moving frames
+    redo these searches every stage (Eulerian runs once): 302 -> 29 ms per call at 120 on the
+    body (experiments/bench_cylinder.py, docs/performance.md)."""
+    import dataclasses
+
     import jax
 
     from mlsph_jax.kernels import get_kernel
-    from mlsph_jax.wall_integral import wall_stencils
+    from mlsph_jax.status import Status
 
-    cfg = config_mod.load(CONFIG_DIR / "cylinder.toml", ["case.n_theta=32", "case.r_far=10", "output.plots=false"])
-    p, bw = (pb := build_problem(cfg)).particles, pb.boundary
+    cfg = config_mod.load(CONFIG_DIR / "cylinder.toml", ["case.n_theta=48", "case.r_far=10", "output.plots=false"])
+    pb = build_problem(cfg)
+    p, bw = pb.particles, pb.boundary
     h = bw.beta * np.asarray(p.vol) ** 0.5
     kern = get_kernel(bw.kernel)
-    assert h.max() > 20 * h.min()
-    assert bw.grid is not None
-    assert kern.support * float(np.max(np.asarray(bw.stencils(p, bw.points({}).x).h))) <= bw.grid.cell_size
-    assert bw.grid.cell_size < 0.1 * kern.support * h.max()
     xb = bw.points({}).x
+    assert h.max() > 20 * h.min()
+    assert bw.grid is not None and bw.near_grid is not None
+    assert kern.support * float(np.max(np.asarray(bw.stencils(p, xb).h))) <= bw.grid.cell_size
+    assert bw.grid.cell_size < 0.1 * kern.support * h.max()
+    brute_walls = dataclasses.replace(bw, grid=None, near_grid=None)
     rng = np.random.default_rng(11)
     x = p.x + 0.2 * jnp.asarray(h[:, None] / bw.beta * rng.uniform(-1, 1, p.x.shape))
     moved = p.replace(x=x)
-    cells = jax.jit(lambda q: bw.stencils(q, xb))(moved)
-    brute = wall_stencils(x, p.vol, p.kind, xb, beta=bw.beta, support=kern.support, capacity=bw.capacity)
-    assert int(jnp.max(cells.count)) <= bw.capacity
+    search = jax.jit(lambda w, q: (w.stencils(q, xb), *w.near_rows(q, xb)))
+    cells, brute = search(bw, moved), search(brute_walls, moved)
+    assert int(jnp.max(cells[0].count)) <= bw.capacity and not bool(cells[2])
     for a, b in zip(jax.tree_util.tree_leaves(brute), jax.tree_util.tree_leaves(cells), strict=True):
         a, b = np.asarray(a), np.asarray(b)
         if a.dtype.kind == "f":
             np.testing.assert_allclose(a, b, rtol=0, atol=1e-13 * max(np.abs(b).max(), 1e-300))
         else:
             np.testing.assert_array_equal(a, b)
+    assert int(bw.band_status(moved, pb.params)[0]) == 0
+    grown = moved.replace(vol=moved.vol * 4.0)       # supports 2x: beyond the cells' 1.5x headroom
+    assert int(jnp.min(bw.stencils(grown, xb).count)) == np.iinfo(np.int32).max
+    assert Status(int(bw.band_status(grown, pb.params)[0])) & Status.BOUNDARY_OVERFLOW
 
 
 def test_body_terms_vanish_for_a_uniform_state_at_rest():

@@ -242,6 +242,24 @@ def test_hessian_and_h_derivative_away_from_the_origin(name, d):
         assert dwdh == pytest.approx(fd, rel=1e-7)
 
 
+@pytest.mark.parametrize("name", NAMES)
+def test_mixed_derivatives_in_h_and_x_commute_at_the_origin(name):
+    """d/dh of the Hessian at dx = 0 and the Hessian of dW/dh are both
+    -(d + 2) f''(0) sigma_d / h^(d+3) I (d = 2); an integer h (no tangent of its own) differentiates
+    as the float."""
+    kern = get_kernel(name)
+    d = 2
+    z = jnp.zeros(d)
+    exact = -(d + 2) * kern.f2_0[d - 1] * kern.norm(d) / H ** (d + 3) * np.eye(d)
+    h_of_hess = jax.jacfwd(lambda hh: jax.hessian(lambda v: kern.w_vec(v, hh))(z))(H)
+    hess_of_h = jax.hessian(lambda v: jax.grad(lambda hh: kern.w_vec(v, hh))(H))(z)
+    np.testing.assert_allclose(np.asarray(h_of_hess), exact, rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(hess_of_h), exact, rtol=1e-12)
+    x = jnp.asarray([0.3, -0.2])
+    np.testing.assert_array_equal(np.asarray(jax.grad(lambda v: kern.w_vec(v, 1))(x)),
+                                  np.asarray(jax.grad(lambda v: kern.w_vec(v, 1.0))(x)))
+
+
 @pytest.mark.parametrize("d", DIMS)
 @pytest.mark.parametrize("name", NAMES)
 def test_compact_support(name, d):
