@@ -471,7 +471,8 @@ SHIFT_MASS = (
     "the walls varies across the wall rows, and the first-moment correction of those rows (not a pair "
     "difference) acts on the gradient of rho (u - w): measured mass change 9.7e-6 at t = 1 with the cubic "
     "reconstruction (4.7e-6 quadratic; 6.0e-4 while the drift still pointed into the walls, before decision 78, "
-    "3.7e-3 before decision 60)")
+    "3.7e-3 before decision 60); 95-100 % of the rate is that correction, the rest the self-flux term's closure "
+    "defect, as without walls (docs/moving_particles.md section 9)")
 
 
 def test_shifting_drift_has_no_component_into_the_walls():
