@@ -13,6 +13,8 @@ Both versions' final states (q, x and V) are compared (max |difference|, should 
 change keeps the numbers).
 
     python experiments/bench_moving_frames.py --baseline 0f0c6e6 [--sizes 50 100] [--rounds 5]
+    python experiments/bench_moving_frames.py --baseline HEAD --frames eulerian ale_shift \
+        --this-set scheme.conservation_projection=true     # an option's cost (decision 112)
 
 Prints per chunk: compile seconds, ms per step (best and median wall time, and best process CPU time),
 particle-updates/s (N / step time) and the ratio to
@@ -83,6 +85,9 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--chunk-steps", type=int, default=10)
     ap.add_argument("--set", nargs="*", default=[], dest="sets", help="config overrides KEY=VALUE")
+    ap.add_argument("--this-set", nargs="*", default=[], dest="this_sets",
+                    help="overrides for this tree only (an option the baseline lacks, e.g. "
+                         "scheme.conservation_projection=true against --baseline HEAD)")
     a = ap.parse_args(argv)
     import mlsph_jax
     versions = {"this": mlsph_jax}
@@ -95,7 +100,8 @@ def main(argv=None) -> int:
         calls = {}
         for frame in a.frames:
             for ver, pkg in versions.items():
-                c, args, npart, comp, cap, q = chunk_of(pkg, n, frame, a.chunk_steps, a.sets)
+                sets = [*a.sets, *(a.this_sets if ver == "this" else [])]
+                c, args, npart, comp, cap, q = chunk_of(pkg, n, frame, a.chunk_steps, sets)
                 calls[(ver, frame)] = (c, args, npart, comp, cap, q)
                 print(f"n={n} {ver:>4s} {frame:>10s}: compiled in {comp:.1f} s (K = {cap})", flush=True)
         best = dict.fromkeys(calls, float("inf"))
@@ -127,6 +133,7 @@ def main(argv=None) -> int:
     print(f"load average {load0[0]:.2f} -> {load1[0]:.2f}")
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps({"baseline": a.baseline, "rounds": a.rounds, "chunk_steps": a.chunk_steps,
+                               "sets": a.sets, "this_sets": a.this_sets,
                                "load_average": [list(load0), list(load1)], "rows": rows}, indent=1) + "\n")
     return 0
 

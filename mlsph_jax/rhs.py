@@ -57,6 +57,7 @@ from . import approximation as apx
 from . import fallback
 from .approximation import mls
 from .eos import get_eos, to_primitive
+from .errors import InputError
 from .flux import ale_flux_dot
 from .frames import frame_velocity, shifting_velocity
 from .kernels import get_kernel
@@ -66,9 +67,10 @@ from .state import Domain, Kind, Params, Particles
 from .status import Status
 from .stencil import columns as _cols
 from .stencil import flat_reverse_index
-from .viscous import diffusive_fields, pair_diffusive_flux, self_diffusive_flux, viscous_terms
+from .viscous import diffusive_fields, pair_diffusive_flux, particle_flux, self_diffusive_flux, viscous_terms
 
-__all__ = ["Geometry", "evaluate", "frame_velocity", "geometry", "reconstruct", "rhs", "shifting_velocity", "source"]
+__all__ = ["Geometry", "check_conservation_projection", "conservation_projection", "evaluate", "frame_velocity",
+           "geometry", "reconstruct", "rhs", "shifting_velocity", "source"]
 
 
 @jax.tree_util.register_dataclass
@@ -285,24 +287,83 @@ def rhs(particles: Particles, params: Params, geom: Geometry, scheme: Scheme, bo
     else:
         sums = sweep(True)
     dq = -sums[:, :nv]
+    a = sums[:, nv:nv + d]                                   # closure sum_j A_ij
+    defect = None            # the terms that are not pair or wall fluxes (decision 112), [N, nv]
     if scheme.self_flux:
-        dq = dq + ale_flux_dot(U, prim, w, sums[:, nv:nv + d], eos)
+        defect = ale_flux_dot(U, prim, w, a, eos)
+        dq = dq + defect
     if fused and scheme.self_flux:
-        dq = dq - self_diffusive_flux(prim, fitc, geom.h, sums[:, nv:nv + d], scheme, params)
+        sd = self_diffusive_flux(prim, fitc, geom.h, a, scheme, params)
+        dq = dq - sd
+        defect = defect - sd
     elif scheme.diffusive and not fused:
-        dq = dq + viscous_terms(prim, geom, scheme, params, scheme.fit_degree)
+        dq = dq + viscous_terms(prim, geom, scheme, params, scheme.fit_degree)     # self term inside
+        if scheme.conservation_projection:
+            defect = defect - jnp.einsum("nvd,nd->nv", particle_flux(prim, geom, scheme, params), a)
     dq = dq + vol[:, None] * source(U, prim, params, eos)
     if eulerian:
         dvol, dxdt = jnp.zeros_like(vol), jnp.zeros_like(x)
+        defect_v = None
     else:
         dvol = sums[:, nv + d]
+        defect_v = -jnp.sum(w * a, axis=-1)                  # the -w_i . sum_j A_ij of eq. 4.32
     # ---- boundary-integral walls (thesis eq. 4.24, SPEC §5.8; mlsph_jax/wall_integral.py) ----
     if getattr(boundary, "wall_terms", None) is not None:
-        bq, bvol = boundary.wall_terms(particles, params, geom, scheme, U, prim, w)
+        if scheme.conservation_projection:
+            bq, bvol, wall_defect, wall_defect_v = boundary.wall_terms(particles, params, geom, scheme, U, prim,
+                                                                       w, with_defect=True)
+            defect = defect + wall_defect
+            defect_v = None if eulerian else defect_v + wall_defect_v
+        else:
+            bq, bvol = boundary.wall_terms(particles, params, geom, scheme, U, prim, w)
         dq = dq - bq
         dvol = dvol if eulerian else dvol + bvol
     # ---- end of the boundary-integral walls ----
+    if scheme.conservation_projection:
+        dq = dq - conservation_projection(defect, vol, fluid[:, 0])
+        if not eulerian:
+            dvol = dvol - conservation_projection(defect_v[:, None], vol, fluid[:, 0])[:, 0]
     return (jnp.where(fluid, dxdt, 0.0), jnp.where(fluid[:, 0], dvol, 0.0), jnp.where(fluid, dq, 0.0))
+
+
+def conservation_projection(defect, vol, fluid):
+    """``V_i R / sum_fluid V`` on the fluid rows (0 elsewhere), R = sum_fluid defect_i [nc]: the
+    volume-weighted least change of the fluid rows' rates that removes the net rate of their terms
+    that are not pair or wall fluxes (decision 112; docs/moving_particles.md §9):
+
+    * d(V U)/dt: the self-flux term s F_i . sum_j A_ij of eq. 4.36, the wall bracket's
+      s F_i . beta_i and decision 60's first-moment correction;
+    * dV/dt (moving frames): the -w_i . sum_j A_ij of eq. 4.32, the wall's -s w_i . beta_i and the
+      correction's -V_i E_i : grad w_i.
+
+    Subtracted, the totals of V U change by the wall fluxes and the sources alone, as in the
+    continuum and the s = 0 scheme (SPEC §5.5), and the fluid's total volume by the walls' motion
+    alone.  Both projections are uniform relative rates, and for a uniform state U the defect of
+    V U is U times the volume's (the pair closures sum to zero over the fluid when every neighbour
+    of a fluid particle is one, the condition :func:`check_conservation_projection` enforces), so
+    a uniform state stays exact."""
+    f = fluid[:, None]
+    R = jnp.sum(jnp.where(f, defect, 0.0), axis=0)
+    return jnp.where(f, vol[:, None] * (R / jnp.sum(jnp.where(fluid, vol, 0.0))), 0.0)
+
+
+def check_conservation_projection(scheme: Scheme, kind) -> None:
+    """Refuse (``InputError``) ``scheme.conservation_projection`` on a layout with particles that
+    are not fluid (mirror ghosts, a frozen far field, boundary particles): there the pair terms
+    between fluid and other particles are boundary fluxes whose closure does not sum to zero, the
+    fluid's defect R of a uniform state is not zero, and the projection would accelerate a fluid at
+    rest.  ``kind``: the set-up particles' kinds (host array)."""
+    import numpy as np
+
+    if not scheme.conservation_projection:
+        return
+    other = int(np.sum(np.asarray(kind) != int(Kind.FLUID)))
+    if other:
+        raise InputError(f"invalid scheme.conservation_projection=True with {other} particles that are not "
+                         "fluid (mirror ghosts, a frozen far field or boundary particles): the global balance "
+                         "needs every neighbour of a fluid particle to be a fluid particle; allowed: periodic "
+                         "domains and boundary-integral walls without a far field (case.walls=\"boundary_integral\"), "
+                         "or scheme.conservation_projection=False")
 
 
 def source(U, prim, params: Params, eos):

@@ -181,12 +181,16 @@ def setup_run(problem, *, headroom: float = 1.3, min_moving_headroom: bool | flo
     ``nspec``: use this spec instead of sizing one (the list is built from it).  Walls whose
     velocity crosses them are refused here, on every run path (``check_motion`` of the boundary,
     with the problem's Params; skipped when they are traced, e.g. a problem built inside a
-    transformation: the check is host side)."""
+    transformation: the check is host side), and so is ``scheme.conservation_projection`` on a
+    layout with particles that are not fluid (:func:`mlsph_jax.rhs.check_conservation_projection`)."""
     check_motion = getattr(problem.boundary, "check_motion", None)
     if check_motion is not None and not any(isinstance(v, jax.core.Tracer)
                                             for v in jax.tree_util.tree_leaves(dict(problem.params))):
         check_motion(problem.params)
     p = problem.particles if particles is None else particles
+    if not isinstance(p.kind, jax.core.Tracer):
+        from .rhs import check_conservation_projection
+        check_conservation_projection(problem.scheme, p.kind)
     if nspec is None:
         nspec, nl = plan_neighbors(p, problem.scheme, problem.domain, headroom=headroom,
                                    min_moving_headroom=min_moving_headroom)

@@ -81,7 +81,8 @@ def morton_order(x: np.ndarray, bits: int | None = None) -> np.ndarray:
 def check_spatial(scheme, boundary, *, local_time_stepping: bool = False):
     """Refuse (``InputError`` naming the key and value) what the spatial decomposition does not
     support: moving frames, MOOD, walls other than mirror ghosts, mirror ghosts without their
-    inviscid shear dissipation (``scheme.ghost_shear_dissipation = false``), local time stepping."""
+    inviscid shear dissipation (``scheme.ghost_shear_dissipation = false``), the conservation
+    projection (``scheme.conservation_projection``), local time stepping."""
     from .boundaries import MirrorWalls
     from .far_field import CharacteristicFarField, WithFarField
 
@@ -109,6 +110,10 @@ def check_spatial(scheme, boundary, *, local_time_stepping: bool = False):
         raise InputError("invalid scheme.ghost_shear_dissipation=false with run.decomposition=\"spatial\": the "
                          "shards' halo boundary does not carry the mirror ghosts' wall-tangential mask (decision "
                          f"81); {ok}scheme.ghost_shear_dissipation=true (or run.decomposition=\"index\")")
+    if scheme.conservation_projection:
+        raise InputError("invalid scheme.conservation_projection=true with run.decomposition=\"spatial\": its "
+                         "sum over all fluid particles is not built across the shards; "
+                         f"{ok}scheme.conservation_projection=false (or run.decomposition=\"index\")")
     if local_time_stepping:
         raise InputError("invalid time.local_time_stepping=true with run.decomposition=\"spatial\"; "
                          f"{ok}time.local_time_stepping=false (or run.decomposition=\"index\")")

@@ -524,9 +524,15 @@ class BoundaryIntegralWalls:
             vn = jnp.where(no_slip & ok, jnp.einsum("bk,bk->b", Nn, vj), vn)
         return vn
 
-    def wall_terms(self, p: Particles, params, geom, scheme, U, prim, w):
+    def wall_terms(self, p: Particles, params, geom, scheme, U, prim, w, *, with_defect: bool = False):
         """``(B[N, nv], dV[N])``: the boundary term B_i of eq. 4.24 (to subtract from d(VU)/dt)
-        and the boundary part of dV_i/dt (module docstring)."""
+        and the boundary part of dV_i/dt (module docstring).
+
+        ``with_defect``: also ``(D[N, nv], D_V[N])``, the parts of -B_i and of dV_i/dt that are
+        not wall fluxes, s F_i . beta_i and -s w_i . beta_i plus decision 60's first-moment
+        corrections, so that sum_i (B_i + D_i) = sum_b dGamma_b F_b . n_b and
+        sum_i (dV_i - D_V,i) = sum_b dGamma_b u_w . n_b exactly (the wall fluxes: no mass through a
+        wall, a closed wall's area kept); ``scheme.conservation_projection`` sums them (decision 112)."""
         eos = get_eos(scheme.eos)
         n, d = p.x.shape
         bp, st, vals, pb, tn, qb = self.wall_state(p, params, scheme, prim)
@@ -565,6 +571,8 @@ class BoundaryIntegralWalls:
             Fi = Fi - Dn
         B = B + c * Fi
         dvol = dvol + c * jnp.sum(w * beta_n, axis=-1)
+        s = 1.0 if scheme.self_flux else 0.0
+        defect, defect_v = s * Fi, -s * jnp.sum(w * beta_n, axis=-1)     # s F_i . beta_i, -s w_i . beta_i
         # first-moment correction of the rows near a wall (decision 54): the one-point pair areas
         # of rows whose neighbours have truncated supports and the wall quadrature leave
         # V_i E_i = sum_j dx_ij (x) A_ij / 2 + sum_b dGamma_b N_i(x_b) (x_b - x_i) (x) n_b / 2 - V_i I
@@ -574,7 +582,7 @@ class BoundaryIntegralWalls:
         # with the self term: it is not a pair difference, and s = 0 is the conservative form; and
         # only with a fit (first-order schemes without one are not linearly consistent anyway)
         if not scheme.self_flux or geom.coeffs is None:
-            return B, dvol
+            return (B, dvol, defect, defect_v) if with_defect else (B, dvol)
         rows = self.fixed[1] if self.fixed is not None else self.near_rows(p, bp.x)[0]
         VE = moment_defect(p, geom, st, weight, bp.normal, rows)                  # [R, d, d]
         Ft = jnp.stack([ale_flux_dot(U, prim, w, jnp.broadcast_to(e, w.shape), eos)
@@ -583,10 +591,12 @@ class BoundaryIntegralWalls:
             Ft = Ft - Dp
         corr = jnp.einsum("nac,nvca->nv", VE, fit_gradient(geom, Ft, scheme.fit_degree, rows))
         B = B.at[rows].add(-corr, mode="drop")
+        defect = defect.at[rows].add(corr, mode="drop")
         if not scheme.frame == "eulerian":
             cv = jnp.einsum("nac,nca->n", VE, fit_gradient(geom, w, scheme.fit_degree, rows))
             dvol = dvol.at[rows].add(-cv, mode="drop")
-        return B, dvol
+            defect_v = defect_v.at[rows].add(-cv, mode="drop")
+        return (B, dvol, defect, defect_v) if with_defect else (B, dvol)
 
     def forces(self, p: Particles, params, scheme):
         """Force of the fluid on each curve ``[n_curves, d]``: sum_b (p_b n_b - tau_b n_b) dGamma_b

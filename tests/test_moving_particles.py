@@ -234,10 +234,12 @@ def test_coarse_lagrangian_taylor_green():
 
 @pytest.mark.slow
 def test_taylor_green_50_shifting_frame_meets_the_targets():
-    """Issue 14 target: 50 x 50, t = 2, shifting frame: E_k error <= 1 %, pressure L2 <= 2 %."""
+    """Issue 14 target: 50 x 50, t = 2, shifting frame: E_k error <= 1 %, pressure L2 <= 2 %
+    (measured 0.45 % / 1.07 %), mass kept to round-off by the config's conservation projection
+    (decision 112; -1.6e-4 without it)."""
     m, c = _tg()
     assert m["ke_rel_error"] < 0.01 and m["l2_pressure_error"] < 0.02
-    assert abs(c["mass"]) < 1e-3
+    assert abs(c["mass"]) < 1e-12
 
 
 @pytest.mark.slow

@@ -107,6 +107,14 @@ SCHEME_KEYS: dict[str, Key] = {
     "self_flux": Key(bool, True,
                      doc="include the self-flux term -F_i.sum_j A_ij (thesis default; keeps "
                          "uniform states exact, conserves only up to a quadrature defect)"),
+    "conservation_projection": Key(bool, False,
+                                   doc="with the self-flux term: subtract V_i R / sum V from every fluid row of "
+                                       "d(VU)/dt, R the fluid rows' sum of the terms that are not pair or wall "
+                                       "fluxes (the self term, the wall rows' first-moment correction), so the "
+                                       "totals of V U (mass, momentum, energy) change only by the boundary "
+                                       "fluxes and sources, to round-off (decision 112); zero where the layout "
+                                       "is exact; refused with scheme.self_flux = false and with "
+                                       "run.decomposition = \"spatial\""),
     "ghost_shear_dissipation": Key(bool, True,
                                    doc="mirror-ghost walls: the numerical flux of a fluid-ghost pair "
                                        "dissipates the jump of the wall-tangential velocity too (true, "
