@@ -95,8 +95,10 @@ def _w_vec(kernel: Kernel, dx, h):
 @_w_vec.defjvp
 def _w_vec_jvp(kernel: Kernel, primals, tangents):
     """Tangent g dx . t_dx + dW/dh t_h with dW/dh = -(d W + g r^2) / h, everything written with
-    W itself (this rule again) and g: derivatives of any order and in any order (x then h or h
-    then x) are the kernel's, also at dx = 0."""
+    W itself (this rule again) and g: the first and second derivatives, in either order (x then h
+    or h then x), are the kernel's, also at dx = 0.  (Higher ones exist at the origin only as far
+    as the kernel's odd powers of r allow: the r^3 term of the cubic spline and of the Wendland C2
+    kernel has no third derivative there.)"""
     dx, h = primals
     t_dx, t_h = tangents
     d = dx.shape[-1]

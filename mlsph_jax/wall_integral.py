@@ -141,6 +141,8 @@ def search_grid(x, h, domain, support: float, headroom: float = 1.5, reach_h: fl
     particles next to the body, whose supports are a small fraction of the far field's."""
     h = np.asarray(h)
     reach = float(h.max()) if reach_h is None else float(reach_h)
+    # h is capped at the reach only so that plan()'s check "cell >= support * max h" accepts the
+    # cells: the particles' own supports are not searched here, the wall points' are
     return plan(np.asarray(x), np.minimum(h, reach), domain, support=support, headroom=headroom,
                 cell_size=support * reach * headroom)
 
