@@ -76,6 +76,7 @@ import numpy as np
 from .approximation import block_remat
 from .errors import InputError
 from .integrate import fixed_boundary, ssp_rk3_step, step_status
+from .rhs import check_conservation_projection
 from .run import cfl_limit, check_fixed_step, default_steps, setup_run
 from .spatial import refuse_in
 from .state import Kind, Params, Particles
@@ -207,6 +208,8 @@ def make_simulate(problem, *, n_steps: int | None = None, t_end: float | None = 
             return _simulate(params, particles)
 
     def _simulate(params: Params, particles: Particles) -> SimOutput:
+        if not isinstance(particles.kind, jax.core.Tracer):   # the caller's own particles (host check)
+            check_conservation_projection(scheme, particles.kind, boundary)
         geom_fn = setup.geometry_fn(particles)
         bnd = fixed_boundary(boundary, scheme, particles, params)   # wall searches once (fixed particles)
         st0, bad0 = state_status(particles, params, scheme)

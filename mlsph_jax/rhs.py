@@ -347,23 +347,34 @@ def conservation_projection(defect, vol, fluid):
     return jnp.where(f, vol[:, None] * (R / jnp.sum(jnp.where(fluid, vol, 0.0))), 0.0)
 
 
-def check_conservation_projection(scheme: Scheme, kind) -> None:
-    """Refuse (``InputError``) ``scheme.conservation_projection`` on a layout with particles that
-    are not fluid (mirror ghosts, a frozen far field, boundary particles): there the pair terms
-    between fluid and other particles are boundary fluxes whose closure does not sum to zero, the
-    fluid's defect R of a uniform state is not zero, and the projection would accelerate a fluid at
-    rest.  ``kind``: the set-up particles' kinds (host array)."""
+def check_conservation_projection(scheme: Scheme, kind, boundary=None, params=None) -> None:
+    """Refuse (``InputError``) ``scheme.conservation_projection`` where the fluid's closures do not
+    cancel, so that the defect R of a uniform state would not be zero and the projection would
+    accelerate a fluid at rest: a layout with particles that are not fluid (mirror ghosts, a frozen
+    far field, boundary particles: the pairs between fluid and other particles are boundary fluxes)
+    or boundary-integral walls that are not closed (sum_b dGamma_b n_b != 0).  ``kind``: the
+    set-up particles' kinds (host array); ``params``: for the walls' quadrature."""
     import numpy as np
 
     if not scheme.conservation_projection:
         return
     other = int(np.sum(np.asarray(kind) != int(Kind.FLUID)))
     if other:
-        raise InputError(f"invalid scheme.conservation_projection=True with {other} particles that are not "
+        raise InputError(f"invalid scheme.conservation_projection=true with {other} particles that are not "
                          "fluid (mirror ghosts, a frozen far field or boundary particles): the global balance "
                          "needs every neighbour of a fluid particle to be a fluid particle; allowed: periodic "
-                         "domains and boundary-integral walls without a far field (case.walls=\"boundary_integral\"), "
-                         "or scheme.conservation_projection=False")
+                         "domains and closed boundary-integral walls without a far field "
+                         "(case.walls=\"boundary_integral\"), or scheme.conservation_projection=false")
+    points = getattr(boundary, "points", None)
+    if points is not None and getattr(boundary, "wall_terms", None) is not None:
+        bp = points({} if params is None else params)
+        dg = np.asarray(bp.dgamma)
+        gap = float(np.linalg.norm(np.sum(dg[:, None] * np.asarray(bp.normal), axis=0)))
+        if gap > 1e-10 * float(np.sum(dg)):
+            raise InputError(f"invalid scheme.conservation_projection=true with walls that are not closed: "
+                             f"|sum_b dGamma_b n_b| = {gap:.3g} of a total length {float(np.sum(dg)):.3g}, so a "
+                             "fluid at rest has a net wall defect; allowed: closed walls (or walls closed by a "
+                             "periodic direction), or scheme.conservation_projection=false")
 
 
 def source(U, prim, params: Params, eos):

@@ -190,7 +190,7 @@ def setup_run(problem, *, headroom: float = 1.3, min_moving_headroom: bool | flo
     p = problem.particles if particles is None else particles
     if not isinstance(p.kind, jax.core.Tracer):
         from .rhs import check_conservation_projection
-        check_conservation_projection(problem.scheme, p.kind)
+        check_conservation_projection(problem.scheme, p.kind, problem.boundary, problem.params)
     if nspec is None:
         nspec, nl = plan_neighbors(p, problem.scheme, problem.domain, headroom=headroom,
                                    min_moving_headroom=min_moving_headroom)

@@ -76,11 +76,14 @@ class Scheme:
                               ``quadratic_complete`` (decision 92): consistency correction of
                               the area vectors (:mod:`mlsph_jax.area_correction`, decision 59)
     self_flux:                keep the -F_i . sum_j A_ij term (thesis eq. 4.36)
-    conservation_projection:  subtract V_i R / sum_fluid V from every fluid row's d(V U)/dt, R the
-                              sum over the fluid rows of the terms that are not pair or wall
-                              fluxes (the self term and decision 60's first-moment correction):
-                              the totals of V U then change by the boundary fluxes and sources
-                              alone, to round-off (decision 112; needs ``self_flux``)
+    conservation_projection:  subtract V_i R / sum_fluid V from every fluid row's d(V U)/dt (and,
+                              moving, V_i R_V / sum V from dV/dt), R the fluid rows' sum of the
+                              terms that are not pair or wall fluxes (the self term, the wall
+                              bracket's s F_i . beta_i, decision 60's first-moment correction):
+                              the totals of V U and V then change by the wall fluxes and sources
+                              alone, to round-off (decision 112; needs ``self_flux``; refused with
+                              non-fluid particles, open walls, local time stepping and the spatial
+                              decomposition)
     ghost_shear_dissipation:  ``True`` (thesis: the flux of a fluid-ghost pair sees the whole
                               velocity jump) | ``False``: the jump of the wall-tangential velocity of
                               every fluid-ghost pair is removed before the flux, so a mirror wall's
@@ -175,9 +178,9 @@ class Scheme:
         if isinstance(w, bool) or not isinstance(w, int | float) or not 0.0 <= w < 1.0:
             raise InputError(f"invalid scheme.wall_rcond={w!r}; allowed: a float with 0 <= wall_rcond < 1")
         if self.conservation_projection and not self.self_flux:
-            raise InputError("invalid scheme.conservation_projection=True with scheme.self_flux=False: without "
+            raise InputError("invalid scheme.conservation_projection=true with scheme.self_flux=false: without "
                              "the self-flux term every term is a pair or wall flux and the totals are conserved "
-                             "already; allowed: scheme.conservation_projection=False, or scheme.self_flux=True")
+                             "already; allowed: scheme.conservation_projection=false, or scheme.self_flux=true")
         if not self.beta > 0:
             raise InputError(f"invalid scheme.beta={self.beta!r}; allowed: > 0")
         if not (self.mood_delta_abs >= 0 and self.mood_delta_rel >= 0):

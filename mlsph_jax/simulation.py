@@ -163,6 +163,11 @@ class Simulation:
         why = local_time_stepping_conflict(dt, problem.scheme.frame)
         if local_time_stepping and why:
             raise InputError(f"invalid time.local_time_stepping=true: {why}; allowed: {LOCAL_TIME_STEPPING_ALLOWED}")
+        if local_time_stepping and problem.scheme.conservation_projection:
+            raise InputError("invalid time.local_time_stepping=true with scheme.conservation_projection=true: each "
+                             "particle advances with its own step, so a global balance of the rates is not one of "
+                             "the totals; allowed: time.local_time_stepping=false, or "
+                             "scheme.conservation_projection=false")
         if isinstance(local_step_ratio, bool) or not (isinstance(local_step_ratio, int | float)
                                                        and math.isfinite(local_step_ratio) and local_step_ratio >= 1):
             raise InputError(f"invalid time.local_step_ratio={local_step_ratio!r}; allowed: a finite number >= 1")

@@ -109,11 +109,14 @@ SCHEME_KEYS: dict[str, Key] = {
                          "uniform states exact, conserves only up to a quadrature defect)"),
     "conservation_projection": Key(bool, False,
                                    doc="with the self-flux term: subtract V_i R / sum V from every fluid row of "
-                                       "d(VU)/dt, R the fluid rows' sum of the terms that are not pair or wall "
-                                       "fluxes (the self term, the wall rows' first-moment correction), so the "
-                                       "totals of V U (mass, momentum, energy) change only by the boundary "
-                                       "fluxes and sources, to round-off (decision 112); zero where the layout "
-                                       "is exact; refused with scheme.self_flux = false and with "
+                                       "d(VU)/dt (moving frames: also V_i R_V / sum V from dV/dt), R the fluid "
+                                       "rows' sum of the terms that are not pair or wall fluxes (the self term, "
+                                       "the wall bracket's s F.beta, the wall rows' first-moment correction), so "
+                                       "the totals of V U (mass, momentum, energy) and V change only by the wall "
+                                       "fluxes and sources, to round-off, and uniform states stay exact "
+                                       "(decision 112); refused with scheme.self_flux = false, with particles "
+                                       "that are not fluid (mirror ghosts, frozen far field), open "
+                                       "boundary-integral walls, time.local_time_stepping and "
                                        "run.decomposition = \"spatial\""),
     "ghost_shear_dissipation": Key(bool, True,
                                    doc="mirror-ghost walls: the numerical flux of a fluid-ghost pair "
