@@ -20,12 +20,13 @@ timeseries.csv and the plots are written; continue with --restart DIR).
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 import warnings
 from pathlib import Path
 
-from . import __version__
+from . import __version__, compilation_cache
 from .errors import ConfigError, DegreeFallbackWarning, InputError, MLSPHError, RunInterrupted, SimulationError
 
 DEFAULT_CONFIG = """\
@@ -63,7 +64,13 @@ def _parser() -> argparse.ArgumentParser:
     plug.add_argument("--plugin", action="append", default=[], metavar="FILE.py|MODULE",
                       help="import a Python file or module first, e.g. one that registers your own flux, EOS or "
                            "case (docs/extending.md); repeatable")
-    r = sub.add_parser("run", parents=[plug], help="run a case from a TOML config (default: Sod's shock tube)")
+    cache = argparse.ArgumentParser(add_help=False)
+    cache.add_argument("--compilation-cache", metavar="DIR|off", default=None,
+                       help="folder of JAX's persistent compilation cache: the next run of the same shapes and "
+                            f"scheme loads its compiled programs instead of compiling them (default: "
+                            f"${compilation_cache.ENV}, else $XDG_CACHE_HOME/mlsph_jax/xla or ~/.cache/mlsph_jax/xla); "
+                            "'off' compiles everything anew (mlsph_jax.compilation_cache)")
+    r = sub.add_parser("run", parents=[plug, cache], help="run a case from a TOML config (default: Sod's shock tube)")
     r.add_argument("config", nargs="?", help="TOML config file or built-in config name, e.g. couette (omit for "
                                              "the default case; mlsph cases lists the names)")
     r.add_argument("--out", help="output folder (default: out/<config name>)")
@@ -91,7 +98,7 @@ def _parser() -> argparse.ArgumentParser:
     i = sub.add_parser("init", parents=[plug], help="write a built-in config (or a case's defaults) to a file to edit")
     i.add_argument("name", metavar="CASE", help="built-in config name (e.g. couette) or case name (mlsph cases)")
     i.add_argument("--out", help="file to write (default: ./CASE.toml; an existing file is not overwritten)")
-    diff_opts = argparse.ArgumentParser(add_help=False, parents=[plug])
+    diff_opts = argparse.ArgumentParser(add_help=False, parents=[plug, cache])
     diff_opts.add_argument("config", nargs="?", help="TOML config file or built-in config name")
     diff_opts.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", action="extend")
     diff_opts.add_argument("--out", help="output folder (default: out/<config name>_<command>)")
@@ -451,6 +458,15 @@ def main(argv=None) -> int:
     try:
         if args.command == "run":
             init_distributed(args)      # before a plugin or a config touches JAX's backends
+        if hasattr(args, "compilation_cache"):     # the commands that compile (before any compilation)
+            chosen = args.compilation_cache
+            chosen = os.environ.get(compilation_cache.ENV) if chosen is None else chosen
+            folder = compilation_cache.resolve(args.compilation_cache)
+            if folder is not None:
+                compilation_cache.enable(folder, name="--compilation-cache" if args.compilation_cache is not None
+                                         else compilation_cache.ENV)
+            elif chosen is not None and chosen.strip().lower() == compilation_cache.OFF:
+                compilation_cache.disable()
         load_plugins(getattr(args, "plugin", []))
         _fix_set(args)
         return {"run": cmd_run, "validate": cmd_validate, "cases": cmd_cases, "init": cmd_init,

@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import fallback, io
+from . import compilation_cache, fallback, io
 from . import neighbors as nb
 from .checkpoint import (
     RESTART_MAY_CHANGE,
@@ -506,6 +506,9 @@ class Simulation:
         )
         if restarted_from is not None:
             summary["restarted_from"] = restarted_from
+        cache = compilation_cache.active()
+        if cache:   # compile_time_s may be a load from JAX's persistent cache (mlsph_jax.compilation_cache)
+            summary["compilation_cache"] = cache
         if self.spatial and self.sharding is not None:
             summary["decomposition"] = self.sharding.info()
         if pb.scheme.component("limiter").summary_key == "mood":

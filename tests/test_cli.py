@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
 
 import h5py
+import numpy as np
 import pytest
 
 from mlsph_jax import config
@@ -103,6 +105,45 @@ def test_run_writes_the_output_contract(tmp_path):
     resolved = config.load(out / "config.toml")
     assert resolved["case"]["n"] == 60
     assert (out / "profiles.png").stat().st_size > 1000
+
+
+def _run_r1(out, *extra, env=None):
+    r = subprocess.run([sys.executable, "-m", "mlsph_jax.cli", "run", str(ROOT / "configs/riemann_r1_tait.toml"),
+                        "--out", str(out), "--quiet", "--set", "case.n=60", "output.snapshots=1", *extra],
+                       capture_output=True, text=True, timeout=600, env=env)
+    assert r.returncode == 0, r.stderr
+    return json.loads((out / "summary.json").read_text())
+
+
+def test_compilation_cache_loads_the_programs_of_a_second_run_with_the_same_numbers(tmp_path):
+    """``--compilation-cache DIR`` (mlsph_jax.compilation_cache): the first run stores its compiled
+    programs (neighbour kernel, chunk), the second of the same shapes loads them, so its compile
+    time falls (measured on Taylor-Green 20 x 20: 2.56 -> 0.44 s for the chunk, the whole command
+    18.8 -> 8.9 s) and its results are the same bit for bit; ``off`` runs without any cache, even
+    one JAX's own variable turned on (as this suite's does)."""
+    cache = tmp_path / "cache"
+    a = _run_r1(tmp_path / "a", "--compilation-cache", str(cache))
+    stored = {p.name.split("-")[0] for p in cache.iterdir() if p.name.endswith("-cache")}
+    assert {"jit_chunk", "jit__update_kernel"} <= stored, stored
+    b = _run_r1(tmp_path / "b", "--compilation-cache", str(cache))
+    assert a["compilation_cache"] == b["compilation_cache"] == str(cache)
+    assert b["compile_time_s"] < 0.5 * a["compile_time_s"], (a["compile_time_s"], b["compile_time_s"])
+    assert (a["metrics"], a["conservation"], a["n_steps"]) == (b["metrics"], b["conservation"], b["n_steps"])
+    with h5py.File(tmp_path / "a" / "fields.h5") as fa, h5py.File(tmp_path / "b" / "fields.h5") as fb:
+        last = sorted(fa["snapshots"])[-1]
+        np.testing.assert_array_equal(fa["snapshots"][last]["rho"][()], fb["snapshots"][last]["rho"][()])
+    env = {**os.environ, "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "jax_own")}
+    c = _run_r1(tmp_path / "c", "--compilation-cache", "off", env=env)
+    assert "compilation_cache" not in c and not (tmp_path / "jax_own").exists()
+
+
+def test_compilation_cache_that_cannot_be_a_folder_is_refused(tmp_path, capsys):
+    """Bad input: a --compilation-cache path that is a file names the option and what is allowed."""
+    bad = tmp_path / "a_file"
+    bad.write_text("")
+    assert main(["run", "riemann_r1_tait", "--out", str(tmp_path / "o"), "--compilation-cache", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert f"invalid --compilation-cache={str(bad)!r}" in err and "allowed: a writable folder, or 'off'" in err
 
 
 def test_config_reference_is_current():
