@@ -50,11 +50,14 @@ SCHEMES: dict[str, tuple[str, ...]] = {
     "deg1 rusanov+thornber": ("scheme.reconstruction_degree=1", "scheme.flux=rusanov", _THORNBER),
 }
 
-#: Extra settings of the moving frames (the scheme of configs/taylor_green_2d_mlsph.toml).
+#: Extra settings of the moving frames (the scheme of configs/taylor_green_2d_mlsph.toml: linear
+#: area vectors without the area correction, whose CG solve would run every stage on moving
+#: particles, beta 2, C = 1, the conservation projection of decision 112).
+_MOVING = ("scheme.degree=1", "scheme.beta=2.0", "scheme.area_correction=none", "scheme.conservation_projection=true")
 FRAMES: dict[str, tuple[str, ...]] = {
     "eulerian": ("scheme.frame=eulerian",),
-    "lagrangian": ("scheme.frame=lagrangian", "scheme.degree=1", "scheme.beta=2.0"),
-    "ale_shift": ("scheme.frame=ale_shift", "scheme.degree=1", "scheme.beta=2.0", "scheme.shift_coefficient=1.0"),
+    "lagrangian": ("scheme.frame=lagrangian", *_MOVING),
+    "ale_shift": ("scheme.frame=ale_shift", *_MOVING, "scheme.shift_coefficient=1.0"),
 }
 
 CASES = {

@@ -310,7 +310,9 @@ def hllc_components(Um, Up, w, A, eos: EOS, params, *, variant: str = "hllc", re
     # into the fused pair loop but written to memory, and so are the states it reads.  Hence
     # 1/|A| by one rsqrt, the side K chosen from the sign of the numerator of S* (not from S*),
     # and S*, t_K (and t_O) from one reciprocal: 14 instead of 28 materialised [rows, K] planes,
-    # HLLC / Rusanov 1.14 instead of 1.32 (experiments/bench_rhs.py, N = 4e4, 2D degree 2).
+    # HLLC / Rusanov 1.14 instead of 1.32 (experiments/bench_rhs.py, N = 4e4, 2D degree 2); after the
+    # later changes of the Rusanov sweep (decisions 89-94) 1.23 / 1.27 at N = 1e4 / 4e4 (2026-12-06,
+    # docs/validation.md "Cost of the fluxes").
     d = len(A)
     energy = eos.has_energy
     velm, pm, cm = primitive_components(Um, eos, params)

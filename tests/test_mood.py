@@ -185,7 +185,8 @@ def test_mood_beats_first_order_without_overshoot(case):
     for k in ("l1_rho", "l1_u", "l1_p"):
         assert m[k] * 1.5 < first[k], (k, m[k], first[k])
     assert m["overshoot"] < 0.02, m
-    # not vacuous: unlimited quadratic reconstruction overshoots (or fails) on the same case
+    # not vacuous: the config's reconstruction (cubic for R1, quadratic for R2 and Sod) without the limiter
+    # overshoots (or fails) on the same case
     try:
         raw = _run(case, "scheme.limiter=none").summary["metrics"]
         assert raw["overshoot"] > 0.02 or raw["l1_rho"] > m["l1_rho"]
