@@ -129,8 +129,10 @@ def test_interpolated_motion_is_the_velocity_of_fluxes_and_volumes(position_upda
     u plus the un-interpolated shifting drift, and eq. 4.32 uses that same velocity:
     dV_i/dt = sum_j ((v_i + v_j)/2 - v_i) . A_ij with v = dx/dt (architecture decision 44).
     ``mls_literal`` (the thesis as printed) moves the particles the same way but keeps w_i = u_i +
-    dw_i in eq. 4.32, so its volume rate differs."""
-    sets = ["scheme.frame=ale_shift", f"scheme.position_update={position_update}"]
+    dw_i in eq. 4.32, so its volume rate differs.  (Without the config's conservation projection,
+    which adds one uniform relative rate to every row: tests/test_conservation_projection.py.)"""
+    sets = ["scheme.frame=ale_shift", f"scheme.position_update={position_update}",
+            "scheme.conservation_projection=false"]
     p, pb, geom, u = _rhs_on_cloud(sets)
     dx, dv, _ = rhs(p, pb.params, geom, pb.scheme)
     dx, dv = np.asarray(dx), np.asarray(dv)
@@ -141,7 +143,8 @@ def test_interpolated_motion_is_the_velocity_of_fluxes_and_volumes(position_upda
     expect = np.einsum("nkd,nkd->n", np.where(pm[..., None], 0.5 * (dx[j] - dx[:, None]), 0.0), A)
     np.testing.assert_allclose(dv, expect, rtol=0, atol=1e-13 * np.abs(expect).max())
     if position_update == "mls":
-        p2, pb2, geom2, _ = _rhs_on_cloud(["scheme.frame=ale_shift", "scheme.position_update=mls_literal"])
+        p2, pb2, geom2, _ = _rhs_on_cloud(["scheme.frame=ale_shift", "scheme.position_update=mls_literal",
+                                           "scheme.conservation_projection=false"])
         dx2, dv_literal, _ = rhs(p2, pb2.params, geom2, pb2.scheme)
         wd = u + drift
         np.testing.assert_allclose(np.asarray(dx2), np.einsum("nk,nkd->nd", np.asarray(geom.interp), wd[j]),
