@@ -68,8 +68,9 @@ def _parser() -> argparse.ArgumentParser:
     cache.add_argument("--compilation-cache", metavar="DIR|off", default=None,
                        help="folder of JAX's persistent compilation cache: the next run of the same shapes and "
                             f"scheme loads its compiled programs instead of compiling them (default: "
-                            f"${compilation_cache.ENV}, else $XDG_CACHE_HOME/mlsph_jax/xla or ~/.cache/mlsph_jax/xla); "
-                            "'off' compiles everything anew (mlsph_jax.compilation_cache)")
+                            f"${compilation_cache.ENV}, else a folder JAX already has ($JAX_COMPILATION_CACHE_DIR), "
+                            "else $XDG_CACHE_HOME/mlsph_jax/xla or ~/.cache/mlsph_jax/xla); 'off' compiles "
+                            "everything anew (mlsph_jax.compilation_cache)")
     r = sub.add_parser("run", parents=[plug, cache], help="run a case from a TOML config (default: Sod's shock tube)")
     r.add_argument("config", nargs="?", help="TOML config file or built-in config name, e.g. couette (omit for "
                                              "the default case; mlsph cases lists the names)")
@@ -453,20 +454,35 @@ def load_plugins(plugins) -> None:
                                   "module name") from None
 
 
+def _use_compilation_cache(option: str | None) -> None:
+    """Turn on the persistent compilation cache for a command that compiles (module
+    :mod:`mlsph_jax.compilation_cache`): a folder the user named must work (else an error naming
+    the setting); the default folder that cannot be written (a read-only home) only costs the cache,
+    with a warning."""
+    chosen = option if option is not None else os.environ.get(compilation_cache.ENV)
+    folder = compilation_cache.resolve(option)
+    if folder is None:
+        if chosen is not None and chosen.strip().lower() == compilation_cache.OFF:
+            compilation_cache.disable()
+        return
+    if chosen is None or chosen == "":
+        try:
+            compilation_cache.enable(folder)
+        except InputError:
+            print(f"mlsph: warning: the default compilation cache folder {folder} cannot be written; running "
+                  f"without the cache (choose a folder with --compilation-cache DIR or ${compilation_cache.ENV}, "
+                  "or pass --compilation-cache off)", file=sys.stderr)
+        return
+    compilation_cache.enable(folder, name="--compilation-cache" if option is not None else compilation_cache.ENV)
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
         if args.command == "run":
             init_distributed(args)      # before a plugin or a config touches JAX's backends
         if hasattr(args, "compilation_cache"):     # the commands that compile (before any compilation)
-            chosen = args.compilation_cache
-            chosen = os.environ.get(compilation_cache.ENV) if chosen is None else chosen
-            folder = compilation_cache.resolve(args.compilation_cache)
-            if folder is not None:
-                compilation_cache.enable(folder, name="--compilation-cache" if args.compilation_cache is not None
-                                         else compilation_cache.ENV)
-            elif chosen is not None and chosen.strip().lower() == compilation_cache.OFF:
-                compilation_cache.disable()
+            _use_compilation_cache(args.compilation_cache)
         load_plugins(getattr(args, "plugin", []))
         _fix_set(args)
         return {"run": cmd_run, "validate": cmd_validate, "cases": cmd_cases, "init": cmd_init,

@@ -18,9 +18,11 @@ recently used entries beyond ``max_bytes``.
 from __future__ import annotations
 
 import os
+import tempfile
 from pathlib import Path
 
 import jax
+from jax.experimental.compilation_cache import compilation_cache as _jax_cache
 
 from .errors import InputError
 
@@ -46,8 +48,9 @@ def active() -> str | None:
 
 def disable() -> None:
     """Turn JAX's persistent compilation cache off for this process (also one that
-    ``JAX_COMPILATION_CACHE_DIR`` turned on)."""
+    ``JAX_COMPILATION_CACHE_DIR`` turned on).  Call it when no compilation is in progress."""
     jax.config.update("jax_enable_compilation_cache", False)
+    _jax_cache.reset_cache()     # JAX keeps the cache object it made at its first use
 
 
 def resolve(option: str | None) -> Path | None:
@@ -66,14 +69,14 @@ def resolve(option: str | None) -> Path | None:
 def enable(path: str | os.PathLike | None = None, *, min_compile_s: float = 0.0,
            max_bytes: int = 2 * 1024**3, name: str = "--compilation-cache") -> Path:
     """Turn on JAX's persistent compilation cache in ``path`` (default :func:`default_dir`),
-    creating the folder; returns it.  Process-wide (a JAX setting); call it before the first
-    compilation.  ``name``: the setting to name in an error."""
-    folder = default_dir() if path is None else Path(path).expanduser()
+    creating the folder; returns it (absolute).  Process-wide (a JAX setting); call it when no
+    compilation is in progress.  ``name``: the setting to name in an error."""
+    folder = (default_dir() if path is None else Path(path).expanduser()).resolve()
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        probe = folder / ".mlsph_write_test"
-        probe.write_bytes(b"")
-        probe.unlink()
+        fd, probe = tempfile.mkstemp(dir=folder, prefix=".mlsph_write_test-")   # one per process
+        os.close(fd)
+        os.unlink(probe)
     except OSError as e:
         raise InputError(f"invalid {name}={str(path if path is not None else folder)!r}: {e.strerror or e}; "
                          f"allowed: a writable folder, or {OFF!r} to run without the cache") from None
@@ -81,4 +84,5 @@ def enable(path: str | os.PathLike | None = None, *, min_compile_s: float = 0.0,
     jax.config.update("jax_compilation_cache_dir", str(folder))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", float(min_compile_s))
     jax.config.update("jax_compilation_cache_max_size", int(max_bytes))
+    _jax_cache.reset_cache()     # a cache object JAX made earlier in the process would keep its folder
     return folder

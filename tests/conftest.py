@@ -66,6 +66,8 @@ def _selects_slow_tests(config) -> bool:
 
 def pytest_configure(config):
     global _made_here
+    # a developer's own command-line cache folder (mlsph_jax.compilation_cache) stays out of the run
+    os.environ.pop("MLSPH_JAX_CACHE_DIR", None)
     if not os.environ.get(_ENV):
         _made_here = tempfile.mkdtemp(prefix="mlsph-jax-test-cache-")
         os.environ[_ENV] = _made_here
