@@ -185,6 +185,7 @@ def test_projected_rates_are_differentiable():
     check_grads(f, (p.q,), order=1, modes=("fwd", "rev"), eps=1e-6, atol=1e-9, rtol=1e-7)
 
 
+@pytest.mark.slow   # 45 s (CI time); the default suite holds the projection's derivative by check_grads above
 def test_gradient_through_the_projection_matches_finite_differences():
     """d E_k(t_end) / d mu of a short shifted-frame Taylor-Green run with the projection (the
     global sums are differentiated like every other term): reverse mode against central
