@@ -30,6 +30,7 @@ import numpy as np
 from . import integrate
 from . import neighbors as nb
 from .errors import InputError
+from .rhs import check_conservation_projection
 from .state import Domain, Params, Particles
 from .status import Status, combine, failure, state_status
 
@@ -189,7 +190,6 @@ def setup_run(problem, *, headroom: float = 1.3, min_moving_headroom: bool | flo
         check_motion(problem.params)
     p = problem.particles if particles is None else particles
     if not isinstance(p.kind, jax.core.Tracer):
-        from .rhs import check_conservation_projection
         check_conservation_projection(problem.scheme, p.kind, problem.boundary, problem.params)
     if nspec is None:
         nspec, nl = plan_neighbors(p, problem.scheme, problem.domain, headroom=headroom,

@@ -566,14 +566,14 @@ class BoundaryIntegralWalls:
         B = scatter(Fb - 0.5 * Fh)
         dvol = scatter(un - 0.5 * wh)
         beta_n = scatter(bp.normal)                                                # sum_b dGamma N_i(x_b) n_b
-        c = 0.5 - (1.0 if scheme.self_flux else 0.0)                               # 1/2 - s
+        s = 1.0 if scheme.self_flux else 0.0
+        c = 0.5 - s                                                                # 1/2 - s
         Fi = ale_flux_dot(U, prim, w, beta_n, eos)
         if scheme.diffusive:
             Dn = jnp.einsum("nvd,nd->nv", Dp, beta_n)
             Fi = Fi - Dn
         B = B + c * Fi
         dvol = dvol + c * jnp.sum(w * beta_n, axis=-1)
-        s = 1.0 if scheme.self_flux else 0.0
         defect, defect_v = s * Fi, -s * jnp.sum(w * beta_n, axis=-1)     # s F_i . beta_i, -s w_i . beta_i
         # first-moment correction of the rows near a wall (decision 54): the one-point pair areas
         # of rows whose neighbours have truncated supports and the wall quadrature leave
