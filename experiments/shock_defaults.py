@@ -22,9 +22,13 @@ Candidates (``--arms``, default all): ``control`` (the default once more: its ``
 how well the shared machine resolves cost differences), ``deg3`` (cubic reconstruction, MOOD
 3 -> 0), ``hllc`` and ``hllc_zha`` (the low-dissipation fluxes, parachute Rusanov), ``thornber``
 (low-Mach reconstruction), ``w_i`` (particles moved with their own velocity instead of the
-method's interpolant of w).  ``--blast-dx`` runs the blast at another spacing (every arm alike);
-``--set`` overrides config keys in every arm (e.g. ``--cases sod --set scheme.position_update=mls``
-gives the Sod scheme from before its config moved to ``w_i``).
+method's interpolant of w), ``mlsph_ale`` (R2, an SPH-ALE config, with the MLS
+approximation of MLSPH-ALE instead of the kernel gradients), ``sph_ale`` (the thesis' SPH-ALE
+with its Shepard motion, ``position_update = "mls_literal"``: the blast's scheme before decision
+114).  ``--blast-dx`` runs the blast at
+another spacing (every arm alike); ``--set`` overrides config keys in every arm (e.g. ``--cases
+sod --set scheme.position_update=mls`` gives the Sod scheme from before its config moved to
+``w_i``).
 
 Writes experiments/output/shock_defaults.json (numbers quoted in docs/validation.md, "Defaults
 from evidence: shocks").
@@ -61,23 +65,9 @@ ARMS = {
     "hllc_zha": ["scheme.flux=hllc_zha", "scheme.parachute_flux=rusanov"],
     "thornber": ["scheme.low_mach_reconstruction=thornber"],
     "w_i": ["scheme.position_update=w_i"],
+    "mlsph_ale": ["scheme.method=mlsph_ale"],
+    "sph_ale": ["scheme.method=sph_ale", "scheme.position_update=mls_literal"],
 }
-
-
-def blast_overshoot(res, pb, cfg) -> float:
-    """New extremum of the bin-averaged radial density profile (bins of width dx) beyond the radial
-    reference's extremum within +-5 dx, relative to the reference's density range."""
-    from mlsph_jax.cases.blast_2d import radial_fields, reference
-    from mlsph_jax.cases.riemann_1d import OVERSHOOT_WINDOW, new_extremum
-
-    ref = reference(cfg, res.summary["t_final"])
-    r, _, rho, _ = radial_fields(res.particles, pb.params, cfg["eos"]["kind"])
-    dx = cfg["case"]["dx"]
-    b = np.floor(r / dx).astype(np.int64)
-    _, inv, cnt = np.unique(b, return_inverse=True, return_counts=True)
-    rb, rhob = np.bincount(inv, weights=r) / cnt, np.bincount(inv, weights=rho) / cnt
-    rng = float(ref.rho.max() - ref.rho.min())
-    return new_extremum(rb, rhob, lambda xs: ref(np.abs(xs))["rho"], OVERSHOOT_WINDOW * dx) / rng
 
 
 def run_one(case: str, arm: str, extra: list[str]):
@@ -96,7 +86,6 @@ def run_one(case: str, arm: str, extra: list[str]):
     fluid = np.asarray(res.particles.kind) == int(Kind.FLUID)
     rho = np.asarray(to_primitive(res.particles.U, get_eos(cfg["eos"]["kind"]), pb.params).rho)[fluid]
     if case == "blast":
-        m["overshoot"] = blast_overshoot(res, pb, cfg)
         m["l1_rho"] = m["l1_rho_radial"]
     row = {"case": case, "arm": arm, "overrides": [*extra, *ARMS[arm]], "status": s["status"],
            "t_final": s["t_final"], "n_particles": s["n_particles"], "metrics": m,
