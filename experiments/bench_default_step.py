@@ -4,13 +4,19 @@ shared machine hits both alike (issue 14: "the default scheme's step at most 1.3
 
 Each variant is the built-in config with ``--set``-style overrides, stepped ``--steps`` times at
 a fixed dt (the CFL step of the config's c0 at cfl 0.3, the same for both variants) in one jitted
-chunk; the time is the compiled chunk's execution (``summary["chunk_time_s"]``), compilation is
-reported beside it.  Prints particle-updates/s and the ratio B / A of the best step times, and
+chunk; ``--n`` is ``case.n`` of the lattice cases (Taylor-Green, the cavity) and the particles
+across the gap of the channels (Couette, Poiseuille: ``case.ny = n``, ``case.nx = n / 2``); the
+time is the compiled chunk's execution (``summary["chunk_time_s"]``), compilation is reported
+beside it.  Prints particle-updates/s and the ratio B / A of the best step times, and
 writes experiments/output/bench_default_step.json.
 
     python experiments/bench_default_step.py [--config taylor_green_2d] [--n 50] [--steps 100]
         [--repeat 3] [--a scheme.low_mach_reconstruction=none eos.c0=10]
         [--b scheme.low_mach_reconstruction=thornber]
+    python experiments/bench_default_step.py --config lid_driven_cavity --n 40 --steps 200 --repeat 5 \
+        --a scheme.reconstruction_degree=2 scheme.low_mach_reconstruction=none
+    python experiments/bench_default_step.py --config couette --n 40 --steps 200 --repeat 5 \
+        --a scheme.reconstruction_degree=2
 """
 
 from __future__ import annotations
@@ -28,12 +34,20 @@ ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "experiments" / "output" / "bench_default_step.json"
 
 
+def resolution(name: str, n: int) -> list[str]:
+    """The overrides that set the particle count: ``case.n`` (lattice cases), or ``case.ny = n``
+    across the gap and ``case.nx = n / 2`` along it for the channels (their shipped aspect)."""
+    case = config.load(ROOT / "configs" / f"{name}.toml")["case"]
+    return [f"case.ny={n}", f"case.nx={max(n // 2, 1)}"] if "ny" in case else [f"case.n={n}"]
+
+
 def run_once(name: str, n: int, steps: int, sets: list[str]) -> dict:
-    cfg = config.load(ROOT / "configs" / f"{name}.toml", [f"case.n={n}", *sets, "output.plots=false",
-                                                         "output.progress=false"])
-    c0, u0 = cfg["eos"]["c0"], cfg["case"].get("u0", cfg["case"].get("u_lid", 1.0))
-    dt = 0.3 * cfg["case"]["length"] / n / (c0 + u0)
-    cfg = config.load(ROOT / "configs" / f"{name}.toml", [f"case.n={n}", *sets, "output.plots=false",
+    size = resolution(name, n)
+    cfg = config.load(ROOT / "configs" / f"{name}.toml", [*size, *sets, "output.plots=false", "output.progress=false"])
+    c = cfg["case"]
+    c0, u0 = cfg["eos"]["c0"], c.get("u0", c.get("u_lid", c.get("u_plate") or 1.0))
+    dt = 0.3 * c.get("length", c.get("gap", 1.0)) / n / (c0 + u0)
+    cfg = config.load(ROOT / "configs" / f"{name}.toml", [*size, *sets, "output.plots=false",
                                                          "output.progress=false", f"time.t_end={steps * dt!r}",
                                                          f"time.dt={dt!r}"])
     pb = build_problem(cfg)

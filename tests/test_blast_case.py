@@ -15,7 +15,7 @@ margin):
 (The thesis' SPH-ALE, ``scheme.method=sph_ale``, beta 2, 1,034 frozen particles, gave 0.0662 /
 0.0372 / 0.0129 symmetric and 0.0670 / 0.0598 / 0.0421 shifted by dx/5.)  So the symmetry bounds
 are tight: an asymmetry of a fifth of a particle spacing in the initial condition already
-exceeds them (radial_spread by 1.1x, radial_spread_linear by 1.9x), whereas the L1 error hardly
+exceeds them (radial_spread by 1.15x, radial_spread_linear by 1.9x), whereas the L1 error hardly
 sees it (test_symmetry_bound_detects_a_shifted_blast runs that case).
 """
 
@@ -39,11 +39,11 @@ COARSE = ("case.dx=5e-3", "time.t_end=5e-6", "scheme.reconstruction_degree=0", "
           "output.progress=false")
 
 # Coarse first-order delaunay run (measured: l1 0.0616, spread 0.0407, spread_linear 0.0120;
-# perturbed layout 0.0608 / 0.0444 / 0.0174).  ~20 % margin on l1, ~13 % on radial_spread, ~50 %
+# perturbed layout 0.0608 / 0.0444 / 0.0174).  ~20 % margin on l1, ~10 % on radial_spread, ~50 %
 # on radial_spread_linear (it is small, so a relative margin is cheap) -- still below the
 # 0.0517 / 0.0336 of a blast whose centre is shifted by only dx/5.
 L1_BOUND = 0.075
-SPREAD_BOUND = 0.046
+SPREAD_BOUND = 0.045
 SPREAD_LINEAR_BOUND = 0.018
 
 
@@ -236,7 +236,7 @@ def test_symmetry_bound_detects_a_shifted_blast():
     its L1 error stays within the symmetric bound (0.0624)."""
     _, res = _run(shift=1e-3)
     m = res.summary["metrics"]
-    assert m["radial_spread"] > SPREAD_BOUND * 1.1, m
+    assert m["radial_spread"] > SPREAD_BOUND * 1.05, m
     assert m["radial_spread_linear"] > SPREAD_LINEAR_BOUND * 1.6, m
     assert m["l1_rho_radial"] < L1_BOUND, m
 
@@ -256,17 +256,18 @@ def test_default_config_mlsph_ale_mood(layout):
     m = s["metrics"]
     b = SLOW_BOUNDS[layout]
     assert m["l1_rho_radial"] < b[0] and m["radial_spread"] < b[1] and m["radial_spread_linear"] < b[2], m
-    assert m["overshoot"] < 0.02, m
+    assert m["overshoot"] < b[3], m
     assert s["mood"]["unresolved_stages"] == 0
     assert abs(s["conservation"]["mass"]) < 1e-8
 
 
-#: layout -> (l1_rho_radial, radial_spread, radial_spread_linear) bounds for the default config,
-#: ~25-30 % above the measured values (in the comments; overshoot 1.74 / 0.45 / 1.65 %; MOOD
-#: flagged at most 17 % of the particles in a stage, with no unresolved stage).  The thesis'
+#: layout -> (l1_rho_radial, radial_spread, radial_spread_linear, overshoot) bounds for the default
+#: config, ~25-30 % above the measured values (in the comments; the overshoot at issue 14's 2 %,
+#: on the rings at 0.7 %, below SPH-ALE's 1.44 % there; MOOD flagged at most 17 % of the
+#: particles in a stage, with no unresolved stage).  The thesis'
 #: SPH-ALE gave 0.0293 / 0.0285 / 0.0113, 0.0256 / 0.00031 / 0.00021 and 0.0294 / 0.0279 / 0.0101.
 SLOW_BOUNDS = {
-    "delaunay": (0.028, 0.038, 0.016),    # 0.0218, 0.0300, 0.0123
-    "rings": (0.025, 0.002, 0.0016),      # 0.0198, 0.00157, 0.00124 (one ring per bin)
-    "perturbed": (0.028, 0.038, 0.015),   # 0.0216, 0.0296, 0.0113
+    "delaunay": (0.028, 0.038, 0.016, 0.02),    # 0.0218, 0.0300, 0.0123, 0.0174
+    "rings": (0.025, 0.002, 0.0016, 0.007),     # 0.0198, 0.00157, 0.00124, 0.0045 (one ring per bin)
+    "perturbed": (0.028, 0.038, 0.015, 0.02),   # 0.0216, 0.0296, 0.0113, 0.0165
 }

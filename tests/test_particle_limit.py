@@ -77,8 +77,9 @@ def test_estimates_bound_the_built_counts(path, overrides):
     """Exact for lattices without walls and for the blast's rings layout (fluid annuli and frozen
     rings counted as built); the mirror-ghost frame and the blast's Delaunay disc with its frozen
     rings upper bounds within 30 % (a wall's ghosts are the fluid particles within its support,
-    fewer near the corners; the blast's Delaunay estimate measured 3-24 % above: at dx = 6.5e-4
-    the former 1.5 dx bound of sqrt(V_max) gave 81,278 for 82,098 built)."""
+    fewer near the corners; the blast's Delaunay estimate measured 3-24 % above with the thesis'
+    SPH-ALE (beta 2), 2.8-15 % with the config's MLSPH-ALE (beta 1.5, 80,075 built at dx = 6.5e-4);
+    at that dx the former 1.5 dx bound of sqrt(V_max) gave 81,278 for 82,098 built with beta 2)."""
     cfg = config_mod.load(CONFIG_DIR / path, overrides)
     n = build_problem(cfg).particles.n
     est = _estimate(cfg)
