@@ -13,9 +13,9 @@ writes experiments/output/bench_default_step.json.
     python experiments/bench_default_step.py [--config taylor_green_2d] [--n 50] [--steps 100]
         [--repeat 3] [--a scheme.low_mach_reconstruction=none eos.c0=10]
         [--b scheme.low_mach_reconstruction=thornber]
-    python experiments/bench_default_step.py --config lid_driven_cavity --n 40 --steps 200 --repeat 5 \
-        --a scheme.reconstruction_degree=2 scheme.low_mach_reconstruction=none
-    python experiments/bench_default_step.py --config couette --n 40 --steps 200 --repeat 5 \
+    python experiments/bench_default_step.py --config lid_driven_cavity --n 40 --steps 1000 --repeat 5 \
+        --a scheme.reconstruction_degree=2 scheme.low_mach_reconstruction=none scheme.ghost_shear_dissipation=true
+    python experiments/bench_default_step.py --config couette --n 40 --steps 1000 --repeat 5 \
         --a scheme.reconstruction_degree=2
 """
 

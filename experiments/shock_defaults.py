@@ -22,13 +22,12 @@ Candidates (``--arms``, default all): ``control`` (the default once more: its ``
 how well the shared machine resolves cost differences), ``deg3`` (cubic reconstruction, MOOD
 3 -> 0), ``hllc`` and ``hllc_zha`` (the low-dissipation fluxes, parachute Rusanov), ``thornber``
 (low-Mach reconstruction), ``w_i`` (particles moved with their own velocity instead of the
-method's interpolant of w), ``mlsph_ale`` (R2, an SPH-ALE config, with the MLS
-approximation of MLSPH-ALE instead of the kernel gradients), ``sph_ale`` (the thesis' SPH-ALE
-with its Shepard motion, ``position_update = "mls_literal"``: the blast's scheme before decision
-114).  ``--blast-dx`` runs the blast at
-another spacing (every arm alike); ``--set`` overrides config keys in every arm (e.g. ``--cases
-sod --set scheme.position_update=mls`` gives the Sod scheme from before its config moved to
-``w_i``).
+method's interpolant of w), ``mlsph_ale`` (R2, an SPH-ALE config, with the MLS approximation
+of MLSPH-ALE instead of the kernel gradients), ``sph_ale`` (the thesis' SPH-ALE with its Shepard
+motion, ``position_update = "mls_literal"``: the blast's scheme before decision 114).
+``--blast-dx`` runs the blast at another spacing (every arm alike); ``--set`` overrides config
+keys in every arm (e.g. ``--cases sod --set scheme.position_update=mls`` gives the Sod scheme from
+before its config moved to ``w_i``).
 
 Writes experiments/output/shock_defaults.json (numbers quoted in docs/validation.md, "Defaults
 from evidence: shocks").
