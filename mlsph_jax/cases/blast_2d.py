@@ -241,13 +241,19 @@ def radial_fields(p: Particles, P, eos_kind: str):
     return np.hypot(x[:, 0], x[:, 1]), np.asarray(p.vol)[fluid], np.asarray(pr.rho)[fluid], x
 
 
+def radial_bins(r: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(inv, cnt)``: the radial bin ``floor(r / width)`` of each particle as an index into the
+    occupied bins, and each occupied bin's particle count (the bins of the spread and overshoot)."""
+    _, inv, cnt = np.unique(np.floor(r / width).astype(np.int64), return_inverse=True, return_counts=True)
+    return inv, cnt
+
+
 def radial_spread(r: np.ndarray, rho: np.ndarray, width: float) -> tuple[float, float, float]:
     """``(rms, max, rms_linear)`` of the within-bin density scatter (module docstring), not
     normalised: bins ``floor(r / width)``; rms over all particles of ``rho_i - mean_bin(rho)``;
     the largest bin standard deviation; rms of the residuals of the per-bin least-squares line
     ``rho ~ a + b r`` (``b = 0`` in a bin whose particles share one radius)."""
-    b = np.floor(r / width).astype(np.int64)
-    _, inv, cnt = np.unique(b, return_inverse=True, return_counts=True)
+    inv, cnt = radial_bins(r, width)
 
     def bin_mean(v):
         return (np.bincount(inv, weights=v) / cnt)[inv]
@@ -265,8 +271,7 @@ def radial_spread(r: np.ndarray, rho: np.ndarray, width: float) -> tuple[float, 
 def radial_overshoot(r: np.ndarray, rho: np.ndarray, ref: RadialSolution, dx: float) -> float:
     """``overshoot`` (module docstring): new extrema of the bin-averaged radial density profile
     beyond the reference's extremum within ``OVERSHOOT_WINDOW * dx``, relative to its range."""
-    b = np.floor(r / dx).astype(np.int64)
-    _, inv, cnt = np.unique(b, return_inverse=True, return_counts=True)
+    inv, cnt = radial_bins(r, dx)
     rb, rhob = np.bincount(inv, weights=r) / cnt, np.bincount(inv, weights=rho) / cnt
     rng = float(ref.rho.max() - ref.rho.min())
     return new_extremum(rb, rhob, lambda xs: ref(np.abs(xs))["rho"], OVERSHOOT_WINDOW * dx) / max(rng, 1e-300)
