@@ -32,6 +32,13 @@ Usage::
     python experiments/bench_rhs.py --sizes 40000 --schemes mlsph_ale-2 --flux rusanov hllc hllc_lm hllc_zha \
         --low-mach none thornber
     python experiments/bench_rhs.py --sizes 40000 --schemes mlsph_ale-2 --baseline 28afe3f --rounds 9
+    MALLOC_MMAP_MAX_=0 MALLOC_TRIM_THRESHOLD_=1000000000000000 MALLOC_TOP_PAD_=67108864 \
+        python experiments/bench_rhs.py --sizes 40000 --schemes mlsph_ale-2 --repeat 25
+
+Every row records the minor page faults of one more ``rhs`` call (``rhs_minor_faults_per_call``:
+XLA:CPU maps the temporaries of each execution afresh) and the JSON's meta the peak resident
+memory and the glibc ``MALLOC_*`` environment variables in effect (docs/performance.md, "Page
+faults of a bare call").
 
 ``--baseline REF``: this tree's ``rhs`` against that of the git ref (exported and imported as a
 second package, as in bench_moving_frames.py), both compiled in one process and called in turn
@@ -44,8 +51,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import pathlib
 import platform
+import resource
 import time
 
 import jax
@@ -159,6 +168,10 @@ def run(name: str, n_target: int, repeat: int, frame: str, seed: int, flux: str 
     for k in ("geometry", "rhs", "geom_rhs"):
         out[f"{k}_evals_per_s"] = 1.0 / out[f"{k}_s"]
         out[f"{k}_particles_per_s"] = n / out[f"{k}_s"]
+    # page faults of one more call: XLA:CPU's temporaries (mlsph_jax.host_allocator)
+    f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    jax.block_until_ready(rhs_c(particles, params, geom))
+    out["rhs_minor_faults_per_call"] = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0
     dq = np.asarray(rhs_c(particles, params, geom)[2])
     out["checksum_dq_abs"] = float(np.abs(dq).sum())
     if keep is not None:      # the compiled rhs and its arguments, for the interleaved timing
@@ -334,7 +347,11 @@ def main(argv=None) -> None:
         dtype=str(jnp.zeros(()).dtype),
         dim=args.dim,
         interleave=args.interleave,
+        malloc_environment={k: v for k, v in os.environ.items() if k.startswith("MALLOC_")},
+        peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
     )
+    print(f"minor page faults per rhs call: {', '.join(str(r['rhs_minor_faults_per_call']) for r in rows)}; "
+          f"peak RSS {meta['peak_rss_mb']:.0f} MB; glibc malloc settings: {meta['malloc_environment'] or 'defaults'}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(dict(meta=meta, results=rows), indent=2))
     print(f"wrote {args.out}")
