@@ -54,12 +54,16 @@ import json
 import os
 import pathlib
 import platform
-import resource
 import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+try:   # Unix only: page faults and peak memory are then not recorded
+    import resource
+except ImportError:   # pragma: no cover
+    resource = None
 
 import mlsph_jax
 from mlsph_jax.eos import get_eos, to_conservative
@@ -168,10 +172,10 @@ def run(name: str, n_target: int, repeat: int, frame: str, seed: int, flux: str 
     for k in ("geometry", "rhs", "geom_rhs"):
         out[f"{k}_evals_per_s"] = 1.0 / out[f"{k}_s"]
         out[f"{k}_particles_per_s"] = n / out[f"{k}_s"]
-    # page faults of one more call: XLA:CPU's temporaries (mlsph_jax.host_allocator)
-    f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    # page faults of one more call: XLA:CPU maps each execution's temporaries afresh (decision 115)
+    f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt if resource else 0
     jax.block_until_ready(rhs_c(particles, params, geom))
-    out["rhs_minor_faults_per_call"] = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0
+    out["rhs_minor_faults_per_call"] = (resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0) if resource else None
     dq = np.asarray(rhs_c(particles, params, geom)[2])
     out["checksum_dq_abs"] = float(np.abs(dq).sum())
     if keep is not None:      # the compiled rhs and its arguments, for the interleaved timing
@@ -348,10 +352,12 @@ def main(argv=None) -> None:
         dim=args.dim,
         interleave=args.interleave,
         malloc_environment={k: v for k, v in os.environ.items() if k.startswith("MALLOC_")},
-        peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 if resource else None,   # Linux: KiB
     )
-    print(f"minor page faults per rhs call: {', '.join(str(r['rhs_minor_faults_per_call']) for r in rows)}; "
-          f"peak RSS {meta['peak_rss_mb']:.0f} MB; glibc malloc settings: {meta['malloc_environment'] or 'defaults'}")
+    if resource:
+        print(f"minor page faults per rhs call: {', '.join(str(r['rhs_minor_faults_per_call']) for r in rows)}; "
+              f"peak RSS {meta['peak_rss_mb']:.0f} MB; "
+              f"glibc malloc settings: {meta['malloc_environment'] or 'defaults'}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(dict(meta=meta, results=rows), indent=2))
     print(f"wrote {args.out}")
